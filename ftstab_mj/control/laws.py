@@ -1,0 +1,159 @@
+"""The three control laws applied to the perturbed chain z_r' = phi + gamma u (NOTES.md sections 4, 6).
+
+Every law maps a state z (..., r) and its adaptive state phi_hat (...) to a :class:`LawOutput`.
+All three share one structure, u = gamma_hat * u0 + phi_hat * sign(u0):
+
+* nominal (Hong alone):     gamma_hat = 1,              phi_hat = 0
+* robust (Theorem 2):       gamma_hat = 1 / gamma_m,    phi_hat = phibar / gamma_m   (constants)
+* adaptive (Theorem 3):     gamma_hat = kappa + delta |u0|,  phi_hat is a state with
+  phi_hat' = rate nu_eps(V1) - (1 - nu_eps(V1)) sig(phi_hat, eta)
+
+so the logged gamma_hat / phi_hat mean the same thing for every law. A law never integrates its
+own state: :meth:`state_derivative` returns phi_hat', and :func:`advance_phi_hat` (or the plant)
+integrates it over a control period with V1 held, keeping phi_hat >= 0.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import numpy as np
+
+from ftstab_mj.control.hong import HongController
+from ftstab_mj.errors import ParameterError
+
+
+class LawOutput(NamedTuple):
+    """One evaluation of a law; every field has the batch shape (...)."""
+
+    u: np.ndarray  # control applied to the plant, chain units
+    u0: np.ndarray  # Hong's nominal control
+    V1: np.ndarray
+    dV1_dzr: np.ndarray
+    gamma_hat: np.ndarray
+    phi_hat: np.ndarray
+
+
+def _positive(name, value, allow_zero=False):
+    ok = isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool)
+    ok = ok and np.isfinite(value) and (value >= 0 if allow_zero else value > 0)
+    if not ok:
+        raise ParameterError(name, "a finite number " + (">= 0" if allow_zero else "> 0"), value)
+    return float(value)
+
+
+@dataclass(frozen=True)
+class NominalLaw:
+    """u = u0: Hong's controller alone, for the unperturbed chain."""
+
+    hong: HongController
+    adaptive = False
+
+    def output(self, z, phi_hat=0.0) -> LawOutput:
+        u0, V1, dV = self.hong.evaluate(z)
+        one = np.ones_like(u0)
+        return LawOutput(u0, u0, V1, dV, one, 0.0 * one)
+
+    def state_derivative(self, V1, phi_hat):
+        return np.zeros(np.broadcast(V1, phi_hat).shape)
+
+
+@dataclass(frozen=True)
+class RobustLaw:
+    """Theorem 2: u = (u0 + phibar sign(u0)) / gamma_m, for known bounds |phi| <= phibar, gamma >= gamma_m."""
+
+    hong: HongController
+    phibar: float
+    gamma_m: float
+    adaptive = False
+
+    def __post_init__(self):
+        object.__setattr__(self, "phibar", _positive("phibar", self.phibar, allow_zero=True))
+        object.__setattr__(self, "gamma_m", _positive("gamma_m", self.gamma_m))
+
+    def output(self, z, phi_hat=0.0) -> LawOutput:
+        u0, V1, dV = self.hong.evaluate(z)
+        g_hat = np.full_like(u0, 1.0 / self.gamma_m)
+        p_hat = np.full_like(u0, self.phibar / self.gamma_m)
+        return LawOutput(g_hat * u0 + p_hat * np.sign(u0), u0, V1, dV, g_hat, p_hat)
+
+    def state_derivative(self, V1, phi_hat):
+        return np.zeros(np.broadcast(V1, phi_hat).shape)
+
+
+@dataclass(frozen=True)
+class AdaptiveLaw:
+    """Theorem 3: u = gamma_hat u0 + phi_hat sign(u0), with bounds unknown to the controller.
+
+    kappa, delta > 0 (gamma_hat = kappa + delta |u0|); rate > 0 (the paper's adaptation rate 'k');
+    eta in (0, 1); eps > 0 (the V1 level below which phi_hat decays).
+    """
+
+    hong: HongController
+    kappa: float
+    delta: float
+    rate: float
+    eta: float
+    eps: float
+    adaptive = True
+
+    def __post_init__(self):
+        for name in ("kappa", "delta", "rate", "eps"):
+            object.__setattr__(self, name, _positive(name, getattr(self, name)))
+        eta = self.eta
+        if isinstance(eta, bool) or not isinstance(eta, (int, float, np.integer, np.floating)) or not (0.0 < eta < 1.0):
+            raise ParameterError("eta", "a number in the open interval (0, 1)", eta)
+        object.__setattr__(self, "eta", float(eta))
+
+    def output(self, z, phi_hat) -> LawOutput:
+        u0, V1, dV = self.hong.evaluate(z)
+        g_hat = self.kappa + self.delta * np.abs(u0)
+        p_hat = np.broadcast_to(np.asarray(phi_hat, dtype=float), u0.shape)
+        return LawOutput(g_hat * u0 + p_hat * np.sign(u0), u0, V1, dV, g_hat, p_hat)
+
+    def nu(self, V1):
+        """nu_eps(V1) = 0.5 + 0.5 sat((|V1| - 0.75 eps) / (0.25 eps)), in [0, 1]."""
+        x = (np.abs(V1) - 0.75 * self.eps) / (0.25 * self.eps)
+        return 0.5 + 0.5 * x / np.maximum(1.0, np.abs(x))
+
+    def state_derivative(self, V1, phi_hat):
+        """phi_hat' = rate nu - (1 - nu) sig(phi_hat, eta), shape of the broadcast of V1 and phi_hat."""
+        nu = self.nu(V1)
+        return self.rate * nu - (1.0 - nu) * np.sign(phi_hat) * np.abs(phi_hat) ** self.eta
+
+
+def advance_phi_hat(law, V1, phi_hat, h, substeps: int = 8):
+    """Integrate phi_hat over a period h with V1 held (zero-order hold); result >= 0. Shapes (...).
+
+    With V1 held, nu is constant and the ODE phi' = a - b phi^eta (a = rate nu, b = 1 - nu) is
+    solved exactly where it has a closed form: b = 0 (ramp) and a = 0 (finite-time decay
+    phi(t+h) = max(0, phi^(1-eta) - (1-eta) h)^(1/(1-eta))). In the transition band
+    (0 < nu < 1) a > 0 keeps phi >= 0 and phi relaxes monotonically towards (a/b)^(1/eta); there
+    RK4 with ``substeps`` sub-steps is used, clipped at 0 as a guard.
+    """
+    if not getattr(law, "adaptive", False):
+        return np.asarray(phi_hat, dtype=float) + 0.0
+    V1, phi = np.broadcast_arrays(np.asarray(V1, dtype=float), np.maximum(np.asarray(phi_hat, dtype=float), 0.0))
+    nu = law.nu(V1)
+    eta = law.eta
+    ramp = phi + law.rate * h
+    decay = np.maximum(0.0, phi ** (1.0 - eta) - (1.0 - eta) * h) ** (1.0 / (1.0 - eta))
+    out = np.where(nu >= 1.0, ramp, decay)
+    band = (nu > 0.0) & (nu < 1.0)
+    if np.any(band):
+        a, b, x = law.rate * nu[band], 1.0 - nu[band], phi[band]
+        dt = h / substeps
+
+        def f(y):
+            return a - b * np.maximum(y, 0.0) ** eta
+
+        for _ in range(substeps):
+            k1 = f(x)
+            k2 = f(x + 0.5 * dt * k1)
+            k3 = f(x + 0.5 * dt * k2)
+            k4 = f(x + dt * k3)
+            x = np.maximum(0.0, x + dt / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4))
+        out = np.array(out, copy=True)
+        out[band] = x
+    return out

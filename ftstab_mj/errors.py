@@ -1,0 +1,16 @@
+"""Error hierarchy. Every user-facing error subclasses a builtin so callers can catch broadly.
+
+Messages name the parameter (or key path), what is allowed, and what was given.
+"""
+
+
+class FtstabError(Exception):
+    """Base of all ftstab_mj errors."""
+
+
+class ParameterError(FtstabError, ValueError):
+    """A controller or certificate parameter is out of its allowed range."""
+
+    def __init__(self, name: str, allowed: str, given: object):
+        self.name, self.allowed, self.given = name, allowed, given
+        super().__init__(f"{name}: expected {allowed}, got {given!r}")

@@ -1,0 +1,30 @@
+"""Shared fixtures. The autouse fixture enforces that global MuJoCo state is put back."""
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+@pytest.fixture(autouse=True)
+def no_control_callback_left_installed():
+    """After every test, MuJoCo's global control callback is what it was before (None)."""
+    import mujoco
+
+    before = mujoco.get_mjcb_control()
+    yield
+    after = mujoco.get_mjcb_control()
+    mujoco.set_mjcb_control(before)  # put it back so one failure does not cascade
+    assert after is before, f"a test left a MuJoCo control callback installed: {after!r}"
+
+
+def run_cli(*args, cwd=None, timeout=600):
+    """Run ``python -m ftstab_mj ARGS`` as a user would (fresh process). Returns CompletedProcess."""
+    env = dict(os.environ)
+    env["PYTHONPATH"] = str(ROOT) + os.pathsep + env.get("PYTHONPATH", "")
+    return subprocess.run([sys.executable, "-m", "ftstab_mj", *map(str, args)], capture_output=True,
+                          text=True, cwd=cwd or ROOT, env=env, timeout=timeout)
