@@ -1,0 +1,107 @@
+"""What a run produces: the contract between the run loop (producer), the log sinks and the metrics.
+
+The run loop describes the run once (:class:`RunInfo`), then hands samples to every sink in
+batches (:class:`SampleBatch`), then closes with a status and the metrics. Sinks only observe.
+Metrics are computed from the same arrays (live) or from the arrays read back from a log (replay),
+so both give the same numbers.
+
+Per control loop, one sample per control period with the fields of :data:`LOOP_FIELDS`
+(DESIGN.md "User-facing contracts"): ``z`` has shape (n, r), every other field (n,).
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+from typing import Protocol
+
+import numpy as np
+
+LOOP_FIELDS = ("t", "z", "u", "u0", "V1", "dV1_dzr", "phi_hat", "gamma_hat", "phi", "gamma")
+
+# Run statuses (the /metrics message carries one).
+COMPLETED = "completed"  # ran for the whole duration
+DIVERGED = "diverged"  # stopped by NaN, a MuJoCo warning or |z| beyond the limit
+INTERRUPTED = "interrupted"  # Ctrl-C
+FAILED = "failed"  # any other error inside the run (e.g. an exception in the controller)
+STATUSES = (COMPLETED, DIVERGED, INTERRUPTED, FAILED)
+
+
+@dataclass(frozen=True)
+class LoopInfo:
+    """Everything metrics need to know about one control loop, independent of the scenario schema.
+
+    law: "nominal" | "robust" | "adaptive"; hong: {"r", "k", "gains", "form"};
+    law_params: robust {"phibar", "gamma_m"}, adaptive {"kappa", "delta", "rate", "eta", "eps"}, nominal {};
+    true_phibar: sup |phi| of the disturbance actually injected, chain units (for Theorem 3's bounds);
+    true_gamma_m, true_gamma_M: range of the true gain gamma(t), chain units.
+    For plants whose phi/gamma bounds come from physics (arm), these are the computed bounds.
+    """
+
+    name: str
+    r: int
+    law: str
+    hong: dict
+    law_params: dict
+    true_phibar: float
+    true_gamma_m: float
+    true_gamma_M: float
+
+
+@dataclass(frozen=True)
+class MetricSettings:
+    """How metrics read a run. settle_level: V1 below it counts as settled; final_fraction: the
+    last part of the run over which accuracy and chattering are measured."""
+
+    settle_level: float = 1e-4
+    final_fraction: float = 0.2
+
+
+@dataclass(frozen=True)
+class RunInfo:
+    """Static description of a run, written once at its start.
+
+    scenario: the resolved scenario as plain JSON-able data (enough to re-run it);
+    period: control period (s); physics_step: MuJoCo timestep (s);
+    model_xml: the MJCF actually simulated (None for the ideal chain), so a log can rebuild 3D;
+    body_names: names of the bodies whose poses are in SampleBatch.body_pos/quat (world excluded).
+    """
+
+    scenario: dict
+    loops: tuple[LoopInfo, ...]
+    period: float
+    physics_step: float
+    metric_settings: MetricSettings = field(default_factory=MetricSettings)
+    model_xml: str | None = None
+    body_names: tuple[str, ...] = ()
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+@dataclass
+class SampleBatch:
+    """n consecutive control samples.
+
+    loops: {loop name: {field: array}} with the fields of LOOP_FIELDS (z (n, r), others (n,));
+    body_pos: (n, nbody, 3) world positions (m) and body_quat: (n, nbody, 4) (w, x, y, z) of the
+    bodies named in RunInfo.body_names, at the same sample times; empty (n, 0, 3)/(n, 0, 4) when
+    there is no 3D model.
+    """
+
+    loops: dict[str, dict[str, np.ndarray]]
+    body_pos: np.ndarray
+    body_quat: np.ndarray
+
+    def __len__(self) -> int:
+        first = next(iter(self.loops.values()))
+        return int(len(first["t"]))
+
+
+class Sink(Protocol):
+    """An observer of a run (MCAP writer, Rerun writer, in-memory collector)."""
+
+    def open(self, info: RunInfo) -> None: ...
+
+    def write(self, batch: SampleBatch) -> None: ...
+
+    def close(self, status: str, metrics: dict, message: str = "") -> None: ...
