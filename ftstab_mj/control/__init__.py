@@ -1,10 +1,12 @@
 """The paper's mathematics as plain NumPy (no MuJoCo): Hong's controller, the laws, the certificate."""
 
 from ftstab_mj.control.certificate import Certificate, Theorem3Bounds, certify, theorem3_bounds
-from ftstab_mj.control.hong import HongController, HongOutput, is_hurwitz, nested_polynomial, sig
+from ftstab_mj.control.hong import (
+    HongController, HongOutput, gains_for_polynomial, is_hurwitz, nested_polynomial, sig,
+)
 from ftstab_mj.control.laws import AdaptiveLaw, LawOutput, NominalLaw, RobustLaw, advance_phi_hat
 
 __all__ = [
     "AdaptiveLaw", "Certificate", "HongController", "HongOutput", "LawOutput", "NominalLaw", "RobustLaw",
-    "Theorem3Bounds", "advance_phi_hat", "certify", "is_hurwitz", "nested_polynomial", "sig", "theorem3_bounds",
+    "Theorem3Bounds", "advance_phi_hat", "certify", "gains_for_polynomial", "is_hurwitz", "nested_polynomial", "sig", "theorem3_bounds",
 ]

@@ -55,6 +55,25 @@ def _shift_add(poly: np.ndarray, l_i: float) -> np.ndarray:
     return out
 
 
+def gains_for_polynomial(coeffs) -> tuple[float, ...]:
+    """Inverse of :func:`nested_polynomial`: the gains l_1..l_r whose nested polynomial is the given
+    monic polynomial (highest degree first). Peeling one level: P_i - y^i = l_i P_{i-1}, so l_i is
+    the coefficient of y^(i-1) in P_i. E.g. ``gains_for_polynomial(np.poly([-1] * r))`` places every
+    linear closed-loop pole at -1. Raises ParameterError when a gain would not be positive.
+    """
+    poly = np.asarray(coeffs, dtype=float)
+    if poly.ndim != 1 or len(poly) < 2 or poly[0] != 1.0:
+        raise ParameterError("coeffs", "a monic polynomial of degree >= 1 (highest degree first)", coeffs)
+    gains = []
+    while len(poly) > 1:
+        l_i = poly[1]
+        if not l_i > 0:
+            raise ParameterError("coeffs", "a polynomial with a nested form of positive gains", tuple(coeffs))
+        gains.append(float(l_i))
+        poly = poly[1:] / l_i  # P_{i-1}, monic
+    return tuple(reversed(gains))
+
+
 def is_hurwitz(gains) -> bool:
     """True when every root of :func:`nested_polynomial` has a negative real part."""
     roots = np.roots(nested_polynomial(gains))
