@@ -33,6 +33,12 @@ def test_hurwitz_is_not_enough():
     assert cert.time_bound(1.0) == float("inf")
 
 
+def test_k_zero_is_exponential_not_finite_time():
+    cert = certify(HongController(2, 0.0, (1.0, 2.0)), samples=20_000)
+    assert cert.certified and cert.alpha == 1.0  # dV1/dt <= -c V1: exponential decay
+    assert cert.time_bound(1.0) == float("inf") and "exponential" in cert.note
+
+
 def test_certificate_is_deterministic_and_seeded():
     h = HongController(2, -0.2, (1.0, 2.0))
     a, b = certify(h, samples=20_000, seed=5), certify(h, samples=20_000, seed=5)

@@ -47,9 +47,10 @@ class Certificate:
     def time_bound(self, V1_0):
         """Theorem 1's bound on the convergence time from a state with V1 = V1_0: V1_0^(1-a)/(c(1-a)).
 
-        Infinite when the certificate does not hold. V1_0 may be an array.
+        Infinite when the certificate does not hold, and at k = 0 (alpha = 1: the linear law
+        converges exponentially, not in finite time). V1_0 may be an array.
         """
-        if not self.certified:
+        if not self.certified or self.alpha >= 1.0:
             return np.full(np.shape(V1_0), np.inf) if np.ndim(V1_0) else float("inf")
         a = self.alpha
         return np.asarray(V1_0, dtype=float) ** (1.0 - a) / (self.c * (1.0 - a))
@@ -113,7 +114,8 @@ def certify(hong: HongController, samples: int = DEFAULT_SAMPLES, seed: int = DE
         form="full", c=c, alpha=(2.0 + 2.0 * k) / (2.0 + k), c_prime=c_prime,
         alpha_prime=1.0 - float(hong.p[hong.r - 1]) / (2.0 + k), certified=bool(c > 0.0),
         samples=samples, seed=seed,
-        note="" if c > 0 else "max of dV1/dt on {V1 = 1} is >= 0: no finite-time certificate for these gains",
+        note=("max of dV1/dt on {V1 = 1} is >= 0: no finite-time certificate for these gains" if c <= 0 else
+              "k = 0: linear law, exponential (not finite-time) convergence" if k == 0 else ""),
     )
 
 
