@@ -14,3 +14,11 @@ class ParameterError(FtstabError, ValueError):
     def __init__(self, name: str, allowed: str, given: object):
         self.name, self.allowed, self.given = name, allowed, given
         super().__init__(f"{name}: expected {allowed}, got {given!r}")
+
+
+class ScenarioError(FtstabError, ValueError):
+    """A scenario file (or a --set override) is malformed: one line with file, key path, expectation, finding."""
+
+    def __init__(self, source: str, path: str, expected: str, found: str):
+        self.source, self.path, self.expected, self.found = source, path, expected, found
+        super().__init__(f"{source}: {path}: expected {expected}, found {found}")

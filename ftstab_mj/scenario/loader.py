@@ -1,0 +1,336 @@
+"""Strict loader: TOML text or a plain dict -> a validated :class:`Scenario`, errors with key paths.
+
+Every problem raises :class:`ScenarioError` naming the source (file, and the ``--set`` that caused
+it), the key path (``loops.cart.controller.gains[1]``), what is allowed and what was found. Checks,
+in order: TOML syntax; unknown keys; missing required keys; types; per-field ranges; then the
+checks across fields (the control period is a multiple of the physics step, the plant knows the
+model and its parameters, one loop per actuated joint, lengths of z0 and gains equal the loop's r,
+Hong's parameters admissible through ftstab_mj.control's own validation, the law's parameters
+present and no other law's, gamma(t) > 0).
+
+``--set key.path=value`` edits the raw TOML data before validation, so an override gets exactly
+the same checks as the file. The value is read as a TOML value (``2``, ``-0.1``, ``[1, 2]``,
+``"x"``); anything that is not a TOML value is taken as a string (``--set plant.model=arm``).
+"""
+
+from __future__ import annotations
+
+import math
+import re
+import tomllib
+import types
+import typing
+import zlib
+from dataclasses import MISSING, fields, is_dataclass, replace
+from pathlib import Path
+
+import numpy as np
+
+from ftstab_mj.control import HongController
+from ftstab_mj.disturbances import Signal
+from ftstab_mj.errors import ParameterError, ScenarioError
+from ftstab_mj.scenario.schema import (
+    EXTERNAL_CHECKS, SIGNAL_DERIVED, ControllerSpec, LoopSpec, PlantSpec, Scenario, period_is_multiple,
+)
+
+_SIGNAL_ROLES = {"disturbance": 1, "gain": 2}
+
+
+def describe(value) -> str:
+    """A found value as the user wrote it, with its TOML type: ``'abc' (a string)``."""
+    kind = {bool: "a boolean", int: "an integer", float: "a float", str: "a string", list: "an array",
+            dict: "a table"}.get(type(value), type(value).__name__)
+    text = repr(value) if not isinstance(value, bool) else str(value).lower()
+    if len(text) > 60:
+        text = text[:57] + "..."
+    return f"{text} ({kind})"
+
+
+def _join(path: str, key) -> str:
+    if isinstance(key, int):
+        return f"{path}[{key}]"
+    return f"{path}.{key}" if path else str(key)
+
+
+def _within(path: str, prefix: str) -> bool:
+    """True when ``path`` is ``prefix`` or lies inside it (``a.b[1]`` lies inside ``a.b``)."""
+    return path == prefix or path.startswith(prefix + ".") or path.startswith(prefix + "[")
+
+
+class _Reader:
+    """Builds typed objects from raw TOML data, raising ScenarioError with the key path."""
+
+    def __init__(self, source: str, overrides: dict[str, str] | None = None):
+        self.source = source
+        self.overrides = overrides or {}  # override path -> the --set text that wrote it
+
+    def error(self, path: str, expected: str, found: str) -> ScenarioError:
+        src = self.source
+        for opath, text in self.overrides.items():  # the override that set this path or a part of it
+            if _within(path, opath) or _within(opath, path):
+                src = f"{self.source} (--set {text})"
+        return ScenarioError(src, path or "(top level)", expected, found)
+
+    # -- scalars ------------------------------------------------------------------------------
+    def number(self, value, path) -> float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise self.error(path, "a number", describe(value))
+        if not math.isfinite(value):
+            raise self.error(path, "a finite number", describe(value))
+        return float(value)
+
+    def integer(self, value, path) -> int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise self.error(path, "an integer", describe(value))
+        return value
+
+    def string(self, value, path) -> str:
+        if not isinstance(value, str):
+            raise self.error(path, "a string", describe(value))
+        return value
+
+    def convert(self, tp, value, path):
+        """Convert raw TOML ``value`` to the annotated type ``tp``."""
+        if tp is float:
+            return self.number(value, path)
+        if tp is int:
+            return self.integer(value, path)
+        if tp is str:
+            return self.string(value, path)
+        if tp is dict:
+            if not isinstance(value, dict):
+                raise self.error(path, "a table", describe(value))
+            return dict(value)
+        origin, args = typing.get_origin(tp), typing.get_args(tp)
+        if origin in (typing.Union, types.UnionType):  # X | None
+            (inner,) = [a for a in args if a is not type(None)]
+            return self.convert(inner, value, path)
+        if origin is tuple and len(args) == 2 and args[1] is Ellipsis:
+            if not isinstance(value, list) or not value:
+                raise self.error(path, "a non-empty array of numbers", describe(value))
+            return tuple(self.convert(args[0], v, _join(path, i)) for i, v in enumerate(value))
+        if tp is Signal:
+            return self.signal(value, path)
+        if is_dataclass(tp):
+            return self.table(tp, value, path)
+        raise TypeError(f"schema type {tp!r} at {path} has no converter")  # a bug in the schema, not input
+
+    # -- tables -------------------------------------------------------------------------------
+    def fields_of(self, cls, value, path, skip=()):
+        """{field name: converted value} for the keys present in the table ``value``; checks keys."""
+        if not isinstance(value, dict):
+            raise self.error(path, "a table", describe(value))
+        hints = typing.get_type_hints(cls)
+        flds = [f for f in fields(cls) if f.init and not f.name.startswith("_") and f.name not in skip]
+        names = [f.name for f in flds]
+        for key in value:
+            if key not in names:
+                raise self.error(_join(path, key), "one of the keys " + ", ".join(names), f"unknown key {key!r}")
+        out = {}
+        checks = EXTERNAL_CHECKS.get(cls, {})
+        for f in flds:
+            p = _join(path, f.name)
+            if f.name not in value:
+                if f.default is MISSING and f.default_factory is MISSING:
+                    doc = f.metadata.get("doc", f.name)
+                    raise self.error(p, f"a value ({doc})", "nothing: the key is required")
+                continue
+            v = self.convert(hints[f.name], value[f.name], p)
+            check = f.metadata.get("check") or checks.get(f.name)
+            allowed = check(v) if check is not None and v is not None else None
+            if allowed:
+                raise self.error(p, allowed, describe(value[f.name]))
+            out[f.name] = v
+        return out
+
+    def table(self, cls, value, path):
+        return cls(**self.fields_of(cls, value, path))
+
+    def signal(self, value, path) -> Signal:
+        kw = self.fields_of(Signal, value, path, skip=SIGNAL_DERIVED)
+        try:
+            return Signal(**kw)
+        except ParameterError as exc:
+            raise self.error(_join(path, exc.name), exc.allowed, describe(exc.given)) from None
+
+    def plant(self, value, path) -> PlantSpec:
+        if not isinstance(value, dict):
+            raise self.error(path, "a table", describe(value))
+        if "model" not in value:
+            raise self.error(_join(path, "model"), "a value (the plant model name)", "nothing: the key is required")
+        params = {k: v for k, v in value.items() if k != "model"}
+        return PlantSpec(model=self.string(value["model"], _join(path, "model")), params=params)
+
+    def loops(self, value, path) -> tuple[LoopSpec, ...]:
+        if not isinstance(value, dict) or not value:
+            raise self.error(path, "a table of loops [loops.<name>], at least one", describe(value))
+        out = []
+        for name, body in value.items():
+            p = _join(path, name)
+            if not isinstance(body, dict):
+                raise self.error(p, "a table [loops.<name>]", describe(body))
+            if "name" in body:
+                raise self.error(_join(p, "name"), "no 'name' key (the table key is the loop name)", "a 'name' key")
+            out.append(LoopSpec(name=name, **self.fields_of(LoopSpec, body, p, skip=("name",))))
+        return tuple(out)
+
+    def scenario(self, raw) -> Scenario:
+        if not isinstance(raw, dict):
+            raise self.error("", "a table", describe(raw))
+        special = {"plant": self.plant, "loops": self.loops}
+        known = {f.name for f in fields(Scenario)}
+        for key in raw:
+            if key not in known:
+                raise self.error(key, "one of the keys " + ", ".join(f.name for f in fields(Scenario)),
+                                 f"unknown key {key!r}")
+        kw = self.fields_of(Scenario, {k: v for k, v in raw.items() if k not in special}, "",
+                            skip=tuple(special))
+        for key, build in special.items():
+            if key not in raw:
+                raise self.error(key, f"a [{key}] table", "nothing: the table is required")
+            kw[key] = build(raw[key], key)
+        return Scenario(**kw)
+
+
+# -- checks across fields ------------------------------------------------------------------------
+def _check(sc: Scenario, rd: _Reader) -> Scenario:
+    sim = sc.sim
+    if not period_is_multiple(sim.period, sim.physics_step):
+        raise rd.error("sim.period", f"an integer multiple of sim.physics_step = {sim.physics_step:g} s",
+                       f"{sim.period:g} s ({sim.period / sim.physics_step:.6g} steps)")
+    loops = []
+    for lp in sc.loops:
+        p = f"loops.{lp.name}"
+        c = lp.controller
+        r = len(lp.z0)  # replaced by the plant's r once the plant is known (see _check_plant)
+        if len(c.gains) != r:
+            raise rd.error(f"{p}.controller.gains", f"{r} gains (one per component of z0, r = {r})",
+                           f"{len(c.gains)} gains")
+        try:
+            HongController(r, c.k, c.gains, form=c.form)
+        except ParameterError as exc:
+            name = exc.name.split(" ")[0]  # "gains[1] (l_2)" -> "gains[1]"
+            raise rd.error(f"{p}.controller.{name}", exc.allowed, describe(exc.given)) from None
+        _check_law_params(c, f"{p}.controller", rd)
+        lo = lp.gain.bounds()[0] if not lp.gain.state_dependent else lp.gain.offset - lp.gain.amplitude
+        if lo <= 0:
+            raise rd.error(f"{p}.gain", "gamma(t) > 0 at all times (offset > amplitude)",
+                           f"a signal reaching {lo:g}")
+        seeds = {role: _derived_seed(sc.seed, lp.name, role) for role in _SIGNAL_ROLES}
+        loops.append(replace(lp, disturbance=replace(lp.disturbance, seed=seeds["disturbance"]),
+                             gain=replace(lp.gain, seed=seeds["gain"])))
+    return replace(sc, loops=tuple(loops))
+
+
+def _check_law_params(c: ControllerSpec, path: str, rd: _Reader) -> None:
+    wanted = set(c.law_params())
+    for f in fields(ControllerSpec):
+        if f.default is not None:  # law parameters are the fields defaulting to None
+            continue
+        value = getattr(c, f.name)
+        if f.name in wanted and value is None:
+            raise rd.error(f"{path}.{f.name}", f"a value for the {c.law} law ({f.metadata['doc']})",
+                           "nothing: the key is required")
+        if f.name not in wanted and value is not None:
+            need = ", ".join(sorted(wanted)) or "no law parameter"
+            raise rd.error(f"{path}.{f.name}", f"only the {c.law} law's parameters ({need})",
+                           f"{f.name} = {value:g}, a parameter of another law")
+
+
+def _derived_seed(seed: int, loop: str, role: str) -> int:
+    """Seed of one signal: a stable function of the scenario seed, the loop name and the role."""
+    ss = np.random.SeedSequence([seed, zlib.crc32(loop.encode()), _SIGNAL_ROLES[role]])
+    return int(ss.generate_state(1)[0])
+
+
+# -- public API ------------------------------------------------------------------------------------
+def scenario_from_dict(raw: dict, source: str = "<scenario>", overrides: dict[str, str] | None = None) -> Scenario:
+    """Validate raw scenario data (as parsed from TOML, or read back from a log) into a Scenario."""
+    rd = _Reader(source, overrides)
+    return _check(rd.scenario(raw), rd)
+
+
+_PATH_RE = re.compile(r"^[A-Za-z_][A-Za-z0-9_-]*(\[\d+\])*(\.[A-Za-z_][A-Za-z0-9_-]*(\[\d+\])*)*$")
+
+
+def parse_override(text: str, source: str) -> tuple[list, object, str]:
+    """``"a.b[1]=2"`` -> (["a", "b", 1], 2, "a.b[1]"). Raises ScenarioError on a malformed override."""
+    if "=" not in text:
+        raise ScenarioError(source, f"--set {text}", "key.path=value", "no '='")
+    key, _, val = text.partition("=")
+    key = key.strip()
+    if not _PATH_RE.match(key):
+        raise ScenarioError(source, f"--set {text}", "a key path like sim.duration or loops.cart.z0[0]",
+                            repr(key))
+    parts: list = []
+    for piece in key.split("."):
+        name, *idx = re.split(r"\[", piece)
+        parts.append(name)
+        parts.extend(int(i.rstrip("]")) for i in idx)
+    try:
+        value = tomllib.loads(f"v = {val.strip()}")["v"]
+    except tomllib.TOMLDecodeError:
+        value = val.strip()  # not a TOML value: a bare string such as a model name
+    return parts, value, key
+
+
+def apply_override(raw: dict, text: str, source: str) -> str:
+    """Apply one ``--set key.path=value`` to raw data in place; returns the key path it set."""
+    parts, value, key = parse_override(text, source)
+    node, path = raw, ""
+    for part, nxt in zip(parts, parts[1:] + [None]):
+        last = nxt is None
+        if isinstance(part, int):
+            if not isinstance(node, list) or part >= len(node):
+                size = f"an array of {len(node)} items" if isinstance(node, list) else describe(node)
+                raise ScenarioError(f"{source} (--set {text})", _join(path, part), "an existing array index",
+                                    size)
+        elif not isinstance(node, dict):
+            raise ScenarioError(f"{source} (--set {text})", path, "a table to set a key in", describe(node))
+        if last:
+            node[part] = value
+        else:
+            if isinstance(node, dict) and part not in node:
+                node[part] = [] if isinstance(nxt, int) else {}
+            node = node[part]
+        path = _join(path, part)
+    return key
+
+
+def load_scenario(path, overrides=()) -> Scenario:
+    """Read, override and validate a scenario file. Raises ScenarioError (one line) on any problem."""
+    src = str(path)
+    p = Path(path)
+    if not p.is_file():
+        raise ScenarioError(src, "(file)", "an existing scenario file (.toml)",
+                            "a directory" if p.is_dir() else "no such file")
+    try:
+        raw = tomllib.loads(p.read_text(encoding="utf-8"))
+    except UnicodeDecodeError as exc:
+        raise ScenarioError(src, "(file)", "UTF-8 text", f"undecodable bytes ({exc.reason})") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ScenarioError(src, "(TOML syntax)", "valid TOML", str(exc)) from None
+    where = {}
+    for text in overrides:
+        where[apply_override(raw, text, src)] = text
+    return scenario_from_dict(raw, src, where)
+
+
+def scenario_to_dict(sc: Scenario) -> dict:
+    """The resolved scenario as plain TOML/JSON-able data; ``scenario_from_dict`` of it gives ``sc`` back."""
+
+    def plain(obj, skip=()):
+        if isinstance(obj, Signal):
+            return {f.name: getattr(obj, f.name) for f in fields(obj)
+                    if f.init and not f.name.startswith("_") and f.name not in SIGNAL_DERIVED}
+        if is_dataclass(obj):
+            return {f.name: plain(getattr(obj, f.name)) for f in fields(obj)
+                    if f.name not in skip and getattr(obj, f.name) is not None}
+        if isinstance(obj, tuple):
+            return [plain(x) for x in obj]
+        return obj
+
+    d = plain(sc, skip=("plant", "loops"))
+    d["plant"] = {"model": sc.plant.model, **sc.plant.params}
+    d["loops"] = {lp.name: plain(lp, skip=("name",)) for lp in sc.loops}
+    return d
