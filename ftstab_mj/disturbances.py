@@ -2,8 +2,9 @@
 
 A :class:`Signal` is ``offset + amplitude * shape(t)`` with ``|shape| <= 1``, so its range is
 known exactly (:meth:`Signal.bounds`) and a scenario can be checked against the bounds a robust
-law assumes. ``worst_case`` is state dependent: ``offset - amplitude * sign(dV1/dz_r)``, the
-disturbance that pushes V1 up hardest (NOTES.md, issue "Controller core").
+law assumes. ``worst_case`` is state dependent: ``offset + amplitude * sign(dV1/dz_r)``, the
+disturbance that pushes V1 up hardest, since its contribution to dV1/dt is dV1/dz_r * phi
+(NOTES.md, issue "Controller core").
 
 Times in seconds, frequencies in Hz. Every random signal takes its randomness from ``seed`` only.
 """
@@ -103,10 +104,10 @@ class Signal:
         if k == "random":
             f, p, w = self._modes
             return np.sin(2 * np.pi * f * t[..., None] + p) @ w
-        # worst case: push V1 up
+        # worst case: push V1 up, i.e. maximise dV1/dz_r * phi
         if dV1_dzr is None:
             raise ParameterError("dV1_dzr", "the controller's dV1/dz_r for a worst_case signal", None)
-        return -np.sign(np.broadcast_to(np.asarray(dV1_dzr, dtype=float), np.broadcast(t, dV1_dzr).shape))
+        return np.sign(np.broadcast_to(np.asarray(dV1_dzr, dtype=float), np.broadcast(t, dV1_dzr).shape))
 
     def __call__(self, t, dV1_dzr=None):
         """Signal value at time t (s), elementwise."""

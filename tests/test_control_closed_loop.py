@@ -83,7 +83,6 @@ def test_nominal_settles_before_certificate_bound(r):
 ROBUST_CASES = {
     "sine": (Signal("sine", 0.0, 1.0, freq=1.3), Signal("sine", 1.0, 0.5, freq=0.7)),
     "steps": (Signal("step", -0.5, 1.0, t_step=2.0), Signal("step", 0.5, 1.0, t_step=3.0)),
-    "worst_case_gamma_min": (Signal("worst_case", 0.0, 1.0), Signal("constant", 0.5)),
     "worst_case_gamma_max": (Signal("worst_case", 0.0, 1.0), Signal("constant", 1.5)),
 }
 PERIODS = (2e-3, 1e-3, 5e-4)
@@ -116,6 +115,21 @@ def test_robust_neighbourhood_shrinks_with_period(r, case):
     assert 0.9 <= slope[-1] <= 1.1, f"z_r slope {slope[-1]:.3f}, accuracies {acc[:, -1]}"
     assert slope[0] >= 0.9, f"z_1 slope {slope[0]:.3f}, accuracies {acc[:, 0]}"
     assert acc[-1, 0] < 1e-4 and acc[-1, -1] < 5e-3
+
+
+@pytest.mark.parametrize("r", [2, 3])
+def test_robust_at_its_bounds_under_worst_case_is_the_nominal_chain(r):
+    """gamma = gamma_m and phi = phibar sign(dV1/dz_r): since sign(u0) = -sign(dV1/dz_r) (NOTES.md
+    section 2), gamma u + phi = u0 + phibar sign(u0) - phibar sign(u0) = u0 exactly, so the run is
+    the nominal law on the unperturbed chain, sample for sample, up to floating-point rounding."""
+    z0 = np.zeros(r)
+    z0[0] = 1.0
+    T = 6.0 if r == 2 else 10.0
+    robust = simulate_chain(RobustLaw(hong(r), phibar=1.0, gamma_m=0.5), z0, 1e-3, T,
+                            Signal("worst_case", 0.0, 1.0), Signal("constant", 0.5))
+    nominal = simulate_chain(NominalLaw(hong(r)), z0, 1e-3, T)
+    np.testing.assert_allclose(robust.z, nominal.z, rtol=0, atol=1e-9)
+    assert np.all(robust.phi * robust.dV1_dzr >= 0)  # the worst case pushes V1 up
 
 
 # --- adaptive: Theorem 3 ------------------------------------------------------------------------
