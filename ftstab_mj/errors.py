@@ -22,3 +22,7 @@ class ScenarioError(FtstabError, ValueError):
     def __init__(self, source: str, path: str, expected: str, found: str):
         self.source, self.path, self.expected, self.found = source, path, expected, found
         super().__init__(f"{source}: {path}: expected {expected}, found {found}")
+
+
+class LogError(FtstabError, ValueError):
+    """A run log cannot be written, or a file given as a log is not one (or is damaged beyond recovery)."""

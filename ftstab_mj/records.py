@@ -77,6 +77,15 @@ class RunInfo:
     def to_dict(self) -> dict:
         return asdict(self)
 
+    @classmethod
+    def from_dict(cls, d: dict) -> "RunInfo":
+        """Inverse of :meth:`to_dict` (a log stores RunInfo as JSON; replay rebuilds it)."""
+        return cls(
+            scenario=d["scenario"], loops=tuple(LoopInfo(**lp) for lp in d["loops"]),
+            period=float(d["period"]), physics_step=float(d["physics_step"]),
+            metric_settings=MetricSettings(**d.get("metric_settings", {})),
+            model_xml=d.get("model_xml"), body_names=tuple(d.get("body_names", ())))
+
 
 @dataclass
 class SampleBatch:
