@@ -1,0 +1,231 @@
+"""Metrics of a run, computed from the logged arrays only (same code live and on replay).
+
+:func:`compute_metrics` maps a :class:`~ftstab_mj.records.RunInfo`, the samples of every loop
+({loop name: {field: array}}, fields of ``records.LOOP_FIELDS``) and the run status to a plain
+JSON-able dict::
+
+    {"status": str, "n_samples": int, "duration": s, "loops": {name: {metric: value}}}
+
+Every per-loop metric is defined by one function below (docstring: definition and units).
+Undefined or non-finite values are ``None`` (JSON null). Samples are read as the log stores
+them: non-finite entries count as NaN, so a live run and its replay give identical dicts.
+
+"The final window" is the last ``MetricSettings.final_fraction`` of the run's duration
+(at least one sample); "period" is the control period h: each sample's u is held for h.
+"""
+
+from __future__ import annotations
+
+import math
+from functools import lru_cache
+
+import numpy as np
+
+from ftstab_mj.records import RunInfo
+
+
+def _num(x):
+    """A JSON-able float (None when not finite)."""
+    x = float(x)
+    return x if math.isfinite(x) else None
+
+
+@lru_cache(maxsize=64)
+def _certificate(r: int, k: float, gains: tuple, form: str):
+    """certify() of Hong's controller, cached by its parameters (it costs ~0.1 s)."""
+    from ftstab_mj.control import HongController, certify
+
+    return certify(HongController(r, k, gains, form=form))
+
+
+def loop_certificate(loop):
+    """The Certificate of a LoopInfo's Hong controller (cached)."""
+    h = loop.hong
+    return _certificate(int(h["r"]), float(h["k"]), tuple(float(g) for g in h["gains"]), h.get("form", "full"))
+
+
+# -- per-loop metric definitions -------------------------------------------------------------------
+
+def settle_time(t, V1, level):
+    """Settling time (s): the first sample time from which V1 <= level until the end of the run.
+
+    One-period resolution. t[0] when V1 is never above level; None when the last sample is above it
+    (not settled) or V1 is NaN there.
+    """
+    above = ~(V1 <= level)  # NaN counts as above
+    if not above.any():
+        return float(t[0])
+    last = int(np.flatnonzero(above)[-1])
+    return None if last == len(t) - 1 else float(t[last + 1])
+
+
+def bound_applies(loop) -> bool:
+    """Whether Theorem 1's time bound T(z0) is a guarantee for this loop (chain units).
+
+    nominal: only without disturbance and with gamma = 1; robust (Theorem 2): the true bounds
+    are within the assumed ones (true_phibar <= phibar, true_gamma_m >= gamma_m); adaptive: never
+    (Theorem 3 gives ultimate bounds, not a convergence time).
+    """
+    if loop.law == "nominal":
+        return loop.true_phibar == 0.0 and loop.true_gamma_m == 1.0 and loop.true_gamma_M == 1.0
+    if loop.law == "robust":
+        p = loop.law_params
+        return loop.true_phibar <= p["phibar"] and loop.true_gamma_m >= p["gamma_m"]
+    return False
+
+
+def time_bound(loop, V1_0):
+    """Theorem 1's bound (s) on the time to reach the origin from V1(z0): V1_0^(1-alpha) / (c (1-alpha)).
+
+    None when the certificate does not hold (c <= 0, or the simplified form, which has none).
+    """
+    cert = loop_certificate(loop)
+    if not cert.certified or not math.isfinite(V1_0):
+        return None
+    return _num(cert.time_bound(V1_0))
+
+
+def final_abs_max(z_final):
+    """Final accuracy per state component: max |z_i| over the final window, list of r (chain units)."""
+    return [_num(np.max(np.abs(z_final[:, i]))) for i in range(z_final.shape[1])]
+
+
+def chattering(u_final, period):
+    """Chattering: total variation of u over the final window per second, sum |u_{k+1} - u_k| / (m h).
+
+    Units: u units per second; m the number of samples of the window. 0 for a one-sample window.
+    """
+    return _num(np.sum(np.abs(np.diff(u_final))) / (len(u_final) * period))
+
+
+def effort(u, period):
+    """Control effort over the whole run with u held per period h.
+
+    Returns (integral |u| dt = h sum |u_k|, integral u^2 dt = h sum u_k^2, max |u_k|); units: u s, u^2 s, u.
+    """
+    return (_num(period * np.sum(np.abs(u))), _num(period * np.sum(u * u)), _num(np.max(np.abs(u))))
+
+
+def eps_ball(t, V1, eps):
+    """First entry into the eps-ball {V1 <= eps} and what V1 does afterwards.
+
+    Returns (entry time s or None, min V1 from the entry on, max V1 from the entry on);
+    (None, None, None) when V1 never enters.
+    """
+    inside = np.flatnonzero(V1 <= eps)
+    if inside.size == 0:
+        return None, None, None
+    after = V1[inside[0]:]
+    return float(t[inside[0]]), _num(np.min(after)), _num(np.max(after))
+
+
+def theorem3_check(loop, V1_final, phi_hat_final):
+    """Theorem 3's bounds (true phibar, gamma_m) and whether the final window respects them.
+
+    Delta: limsup V1 <= Delta, checked as max V1 over the final window <= Delta;
+    phi_hat_limsup: checked as max phi_hat over the final window <= it; eps_reached: min V1 over
+    the final window <= eps (liminf V1 <= eps). None for non-adaptive laws or without certificate.
+    """
+    from ftstab_mj.control import theorem3_bounds
+
+    cert = loop_certificate(loop)
+    if loop.law != "adaptive" or not cert.certified:
+        return None
+    p = loop.law_params
+    b = theorem3_bounds(cert, loop.true_phibar, loop.true_gamma_m, p["kappa"], p["delta"], p["rate"], p["eps"])
+    v_max, ph_max, v_min = float(np.max(V1_final)), float(np.max(phi_hat_final)), float(np.min(V1_final))
+    return {
+        "Phibar": _num(b.Phibar), "Delta": _num(b.Delta), "phi_hat_limsup": _num(b.phi_hat_limsup),
+        "V1_max_final": _num(v_max), "Delta_held": bool(v_max <= b.Delta),
+        "phi_hat_max_final": _num(ph_max), "phi_hat_bound_held": bool(ph_max <= b.phi_hat_limsup),
+        "V1_min_final": _num(v_min), "eps_reached": bool(v_min <= p["eps"]),
+    }
+
+
+def _finite_or_nan(a):
+    a = np.asarray(a, dtype=float)
+    return np.where(np.isfinite(a), a, np.nan)
+
+
+def loop_metrics(info: RunInfo, loop, arrays: dict) -> dict:
+    """All metrics of one loop (see the functions above for each definition)."""
+    a = {k: _finite_or_nan(v) for k, v in arrays.items()}
+    t, V1, u = a["t"], a["V1"], a["u"]
+    n = len(t)
+    ms = info.metric_settings
+    out = {"law": loop.law, "n_samples": n}
+    if n == 0:
+        return out
+    h = info.period
+    win = t >= t[0] + (1.0 - ms.final_fraction) * n * h
+    if not win.any():
+        win[-1] = True
+    ts = settle_time(t, V1, ms.settle_level)
+    tb = time_bound(loop, float(V1[0]))
+    applies = bound_applies(loop)
+    eps = float(loop.law_params["eps"]) if loop.law == "adaptive" else ms.settle_level
+    entry, v_min, v_max = eps_ball(t, V1, eps)
+    e_abs, e_sq, u_max = effort(u, h)
+    out.update({
+        "z0": [_num(x) for x in a["z"][0]],
+        "V1_initial": _num(V1[0]),
+        "V1_final": _num(V1[-1]),
+        "settle_level": ms.settle_level,
+        "settle_time": ts,
+        "time_bound": tb,
+        "bound_applies": applies,
+        "beat_bound": (bool(ts <= tb) if applies and ts is not None and tb is not None else None),
+        "final_window_start": float(t[win][0]),
+        "final_abs_z_max": final_abs_max(a["z"][win]),
+        "chattering": chattering(u[win], h),
+        "effort_abs": e_abs,
+        "effort_sq": e_sq,
+        "u_max_abs": u_max,
+        "eps": eps,
+        "eps_entry_time": entry,
+        "V1_min_after_entry": v_min,
+        "V1_max_after_entry": v_max,
+        "phi_hat_max": _num(np.max(a["phi_hat"])),
+        "phi_hat_final": _num(a["phi_hat"][-1]),
+        "theorem3": theorem3_check(loop, V1[win], a["phi_hat"][win]),
+    })
+    return out
+
+
+def compute_metrics(info: RunInfo, loops: dict, status: str) -> dict:
+    """Metrics of a run: {"status", "n_samples", "duration" (s), "loops": {name: loop_metrics}}.
+
+    loops: {loop name: {field: array}} with z (n, r) and the other fields (n,), as logged.
+    """
+    per = {lp.name: loop_metrics(info, lp, loops[lp.name]) for lp in info.loops}
+    n = max((m["n_samples"] for m in per.values()), default=0)
+    return {"status": status, "n_samples": n, "duration": _num(n * info.period), "loops": per}
+
+
+def _fmt(v) -> str:
+    if v is None:
+        return "-"
+    if isinstance(v, bool):
+        return "yes" if v else "no"
+    if isinstance(v, float):
+        return f"{v:.6g}"
+    if isinstance(v, list):
+        return "[" + ", ".join(_fmt(x) for x in v) + "]"
+    return str(v)
+
+
+def format_table(metrics: dict) -> str:
+    """A human-readable table of :func:`compute_metrics`'s result (one block per loop)."""
+    lines = [f"status {metrics['status']}, {metrics['n_samples']} samples, {_fmt(metrics['duration'])} s"]
+    for name, m in metrics["loops"].items():
+        lines.append(f"loop {name} ({m['law']})")
+        for key, val in m.items():
+            if key in ("law", "theorem3"):
+                continue
+            lines.append(f"  {key:<22} {_fmt(val)}")
+        th = m.get("theorem3")
+        if th:
+            lines.append("  theorem 3 (true bounds):")
+            for key, val in th.items():
+                lines.append(f"    {key:<20} {_fmt(val)}")
+    return "\n".join(lines)
