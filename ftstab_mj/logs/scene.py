@@ -1,0 +1,77 @@
+"""The 3D shapes of a MuJoCo model, read from its MJCF, for the viewers (Rerun, Foxglove).
+
+Both log formats draw the same thing: every geom of a logged body, as a primitive placed in its
+body's frame, and the static geoms of the world body. Body poses over time come from
+SampleBatch.body_pos/body_quat; the shapes themselves never move relative to their body.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+# MuJoCo geom types drawn (others, e.g. meshes and height fields, are left out of the viewers).
+DRAWN = ("plane", "sphere", "capsule", "ellipsoid", "cylinder", "box")
+PLANE_HALF_SIZE = 5.0  # m, half extent drawn for an infinite MuJoCo plane (size 0)
+PLANE_HALF_THICKNESS = 1e-3  # m, a plane is drawn as a thin box
+
+
+@dataclass(frozen=True)
+class Shape:
+    """One geom in its body's frame.
+
+    kind: "box" | "ellipsoid" | "capsule" | "cylinder" (planes become thin boxes, spheres ellipsoids);
+    half_sizes: (3,) m — box and ellipsoid half extents; capsule/cylinder: (radius, radius, half length);
+    pos: (3,) m and quat: (4,) (w, x, y, z), the geom's pose in its body's frame; rgba: (4,) in [0, 1].
+    """
+
+    body: str  # "world" for static geoms
+    name: str
+    kind: str
+    half_sizes: tuple
+    pos: tuple
+    quat: tuple
+    rgba: tuple
+
+
+def model_shapes(model_xml: str, body_names) -> list[Shape]:
+    """Shapes of the geoms attached to the world body or to one of ``body_names``.
+
+    Raises whatever MuJoCo raises for an invalid MJCF (the model was simulated, so it is valid).
+    """
+    import mujoco
+
+    m = mujoco.MjModel.from_xml_string(model_xml)
+    wanted = set(body_names) | {"world"}
+    out = []
+    for g in range(m.ngeom):
+        body = mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_BODY, int(m.geom_bodyid[g])) or "world"
+        gtype = mujoco.mjtGeom(int(m.geom_type[g])).name.removeprefix("mjGEOM_").lower()
+        if body not in wanted or gtype not in DRAWN:
+            continue
+        size = m.geom_size[g]
+        if gtype == "plane":
+            hx = size[0] if size[0] > 0 else PLANE_HALF_SIZE
+            hy = size[1] if size[1] > 0 else PLANE_HALF_SIZE
+            kind, half = "box", (hx, hy, PLANE_HALF_THICKNESS)
+        elif gtype == "sphere":
+            kind, half = "ellipsoid", (size[0],) * 3
+        elif gtype in ("capsule", "cylinder"):
+            kind, half = gtype, (size[0], size[0], size[1])
+        else:
+            kind, half = gtype, tuple(size)
+        name = mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_GEOM, g) or f"geom{g}"
+        out.append(Shape(body=body, name=name, kind=kind, half_sizes=tuple(float(x) for x in half),
+                         pos=tuple(float(x) for x in m.geom_pos[g]), quat=tuple(float(x) for x in m.geom_quat[g]),
+                         rgba=tuple(float(x) for x in m.geom_rgba[g])))
+    return out
+
+
+def quat_rotate(quat_wxyz, v) -> np.ndarray:
+    """Rotate v (3,) by the unit quaternion (w, x, y, z)."""
+    w, x, y, z = quat_wxyz
+    q = np.array([x, y, z])
+    v = np.asarray(v, dtype=float)
+    t = 2.0 * np.cross(q, v)
+    return v + w * t + np.cross(q, t)
