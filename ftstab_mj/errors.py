@@ -26,3 +26,8 @@ class ScenarioError(FtstabError, ValueError):
 
 class LogError(FtstabError, ValueError):
     """A run log cannot be written, or a file given as a log is not one (or is damaged beyond recovery)."""
+
+
+class CallbackError(FtstabError, RuntimeError):
+    """An exception raised inside the MuJoCo control callback (the controller), re-raised with the
+    simulation time; the original exception is its __cause__."""

@@ -1,0 +1,32 @@
+"""MuJoCo plants that the paper's controllers stabilize: build one from plain values with make_plant.
+
+    plant = make_plant("cart", {"mass": 2.0})
+
+Models (files in models/):
+  "cart"              r = 2, one loop "cart"  (params: mass, friction, damping)
+  "cart_integrating"  r = 3, one loop "cart"  (params: mass, friction, damping, sensor_refresh)
+
+An unknown model or parameter raises ParameterError naming it. See base.py for how the run loop
+drives a plant (inputs, sensing, userdata) and each module for its physics and units.
+"""
+
+from __future__ import annotations
+
+from ftstab_mj.errors import ParameterError
+from ftstab_mj.plants.base import Plant
+from ftstab_mj.plants.cart import CartPlant
+
+MODELS = ("cart", "cart_integrating")
+
+
+def make_plant(model: str, params: dict | None = None) -> Plant:
+    """Build the plant ``model`` (one of MODELS) with ``params`` (defaults for missing keys)."""
+    params = {} if params is None else params
+    if model == "cart":
+        return CartPlant(model, params, integrating=False)
+    if model == "cart_integrating":
+        return CartPlant(model, params, integrating=True)
+    raise ParameterError("model", "one of " + ", ".join(MODELS), model)
+
+
+__all__ = ["MODELS", "Plant", "make_plant"]

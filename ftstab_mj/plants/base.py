@@ -1,0 +1,135 @@
+"""What every plant gives the run loop: a compiled MuJoCo model, how to read z, how inputs map to it.
+
+A plant has ``n`` control loops (one per actuated joint), all with the same chain length ``r``.
+The loops' joints are dofs ``0..n-1`` and their actuators are actuators ``0..n-1`` (every model in
+``models/`` is written that way), so the run loop addresses them with plain slices.
+
+Input mapping, per loop i, with the signals of its :class:`ftstab_mj.sim.LoopSpec`:
+
+* control: ``ctrl[i] = gain(t) * u`` (gain = the LoopSpec's ``gamma`` signal). The actuator's own
+  gain ``gainprm`` is fixed by the plant (the cart: its mass, so that ``gamma`` is in chain units).
+  For an integrating actuator MuJoCo has no gain on ``act'`` = ctrl, so writing the gain into ctrl is
+  how a gain on the actuator's input is modelled; for force actuators it is the same product.
+* injected disturbance: the generalized force ``qfrc_applied[i] = dist_scale[i] * phi(t)``
+  (r = 2), or its rate ``d/dt qfrc_applied[i] = dist_scale[i] * phi(t)`` (r = 3, so the force has
+  a bounded derivative and phi is that derivative in chain units; NOTES.md section 7).
+
+MuJoCo's ``userdata`` holds the controller state that must survive a save/restore of the
+simulation state (``mjSTATE_INTEGRATION`` includes it): see :data:`USERDATA_SLOTS`.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import mujoco
+import numpy as np
+
+from ftstab_mj.errors import ParameterError
+
+MODELS_DIR = Path(__file__).resolve().parents[2] / "models"
+
+# userdata layout (n = number of loops): phi_hat of each loop, the only controller state that
+# outlives a control period (everything else is recomputed at each sample).
+USERDATA_SLOTS = 1
+
+INTEGRATORS = {"euler": mujoco.mjtIntegrator.mjINT_EULER, "rk4": mujoco.mjtIntegrator.mjINT_RK4,
+               "implicitfast": mujoco.mjtIntegrator.mjINT_IMPLICITFAST}
+
+
+def number(params: dict, key: str, default: float, *, positive=False, nonneg=False) -> float:
+    """params[key] (or default) as a finite float, checked; ParameterError names ``params.key``."""
+    v = params.get(key, default)
+    ok = isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool) and np.isfinite(v)
+    if ok and positive:
+        ok = v > 0
+    if ok and nonneg:
+        ok = v >= 0
+    if not ok:
+        what = "a finite number" + (" > 0" if positive else " >= 0" if nonneg else "")
+        raise ParameterError(f"params.{key}", what, v)
+    return float(v)
+
+
+def check_keys(model: str, params: dict, allowed) -> None:
+    """Reject a parameter the model does not know, naming it and listing the known ones."""
+    if not isinstance(params, dict):
+        raise ParameterError("params", "a table of plant parameters", params)
+    for key in params:
+        if key not in allowed:
+            raise ParameterError(f"params.{key}", f"a parameter of model {model!r} (one of {', '.join(sorted(allowed))})",
+                                 key)
+
+
+class Plant:
+    """Base of the plants. Subclasses fill the attributes in ``__init__`` and implement the hooks.
+
+    Attributes:
+      model_name: the name given to make_plant; params: resolved parameters (defaults filled in).
+      loop_names: one name per loop ("cart", or "joint0", "joint1", ...); r: chain length.
+      dist_scale: (n,) generalized force per unit of the LoopSpec's phi signal.
+      integrating: True when the actuators integrate (r = 3: the disturbance enters as a force rate).
+      refresh_before_sample: True when a sensor read by :meth:`sense` is computed after the control
+        callback in MuJoCo's forward pass (acceleration stage): the run loop then calls mj_forward
+        once before each control sample so that the sensor is not one physics step old.
+      body_names: bodies whose poses are recorded (world excluded).
+    """
+
+    model_name: str
+    params: dict
+    loop_names: tuple[str, ...]
+    r: int
+    dist_scale: np.ndarray
+    integrating: bool = False
+    refresh_before_sample: bool = False
+    body_names: tuple[str, ...] = ()
+
+    def __init__(self, spec: mujoco.MjSpec):
+        self._spec = spec
+
+    @property
+    def n(self) -> int:
+        return len(self.loop_names)
+
+    def compile(self, physics_step: float, integrator: str = "euler"):
+        """(MjModel, MjData, MJCF text) for this physics step and integrator; the plant is unchanged."""
+        if integrator not in INTEGRATORS:
+            raise ParameterError("integrator", "one of " + ", ".join(INTEGRATORS), integrator)
+        spec = self._spec.copy()
+        spec.option.timestep = float(physics_step)
+        spec.option.integrator = INTEGRATORS[integrator]
+        spec.nuserdata = USERDATA_SLOTS * self.n
+        model = spec.compile()
+        return model, mujoco.MjData(model), spec.to_xml()
+
+    # -- hooks used by the run loop ---------------------------------------------------------------
+    def set_initial(self, m, d, q0: np.ndarray, z0: np.ndarray) -> None:
+        """Put the plant at joint positions q0 (n,) and chain state z0 (n, r) (z0[:, 0] is ignored)."""
+        raise NotImplementedError
+
+    def sense(self, d, z: np.ndarray) -> None:
+        """Write the sensed chain state into z (n, r), z[:, 0] being the joint position (set point not
+        subtracted). Called inside the control callback: position/velocity sensors are fresh there."""
+        raise NotImplementedError
+
+    def true_chain(self, m, d, u: np.ndarray, gain: np.ndarray, phi_inj: np.ndarray):
+        """(phi (n,), gamma (n,)): the true disturbance and gain in chain units at the sample,
+        given the controls u, the gain factors and the injected signal values. Never shown to the
+        controller."""
+        raise NotImplementedError
+
+    def true_bounds(self, phi_bounds, gamma_bounds):
+        """(phibar (n,), gamma_m (n,), gamma_M (n,)) in chain units for injected signals within
+        phi_bounds[i] = (lo, hi) and gain factors within gamma_bounds[i]."""
+        raise NotImplementedError
+
+    def sensor_block(self, m, name: str) -> slice:
+        """Slice of d.sensordata holding sensor ``name``."""
+        i = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SENSOR, name)
+        adr, dim = int(m.sensor_adr[i]), int(m.sensor_dim[i])
+        return slice(adr, adr + dim)
+
+
+def load_spec(filename: str) -> mujoco.MjSpec:
+    """The MjSpec of models/<filename>."""
+    return mujoco.MjSpec.from_file(str(MODELS_DIR / filename))

@@ -1,0 +1,429 @@
+"""The run loop: a plant under the paper's controllers, the controller in MuJoCo's control callback.
+
+    plant = make_plant("cart", {"mass": 2.0})
+    loops = [LoopSpec("cart", RobustLaw(hong, phibar=0.5, gamma_m=0.8),
+                      phi=Signal("sine", amplitude=0.5, freq=1.0), gamma=Signal("constant", 1.0),
+                      z0=(1.0, 0.0))]
+    result = simulate(plant, loops, duration=5.0, period=0.01, physics_step=0.001, sinks=[...])
+
+Timing. The control period is N physics steps (N integer, checked). Sample k is taken at
+t_k = k * period from the state at the start of the step that opens period k: the run loop sets a
+"sample pending" flag before that ``mj_step``, and the first callback call of the step (the one of
+its first forward pass, where position and velocity sensors are fresh) evaluates the law once,
+writes the control and records the sample. Every other callback call (the rest of the steps, the
+RK4 stages, stray forward passes) returns at once, so the control is held over the period whatever
+the integrator. The per-step inputs (gain factor, injected disturbance; plants/base.py) are written
+by the loop before each step. The per-sample computation is :meth:`Simulation._sample` (reads z,
+law.output, writes ctrl): the one place a native callback would replace.
+
+State. The adaptive phi_hat is integrated exactly once per period (``advance_phi_hat``, V1 held)
+and lives in MuJoCo's ``userdata``, so ``mj_getState(mjSTATE_INTEGRATION)`` (which also holds
+qpos, qvel, act, ctrl, qfrc_applied and time) saves the whole run state between samples.
+
+Outcomes. A run ends "completed", "diverged" (NaN or |z| beyond ``divergence_limit`` at a sample,
+a MuJoCo warning), or "interrupted" (Ctrl-C); in every case the sinks get what was recorded and
+are closed with the status, and :class:`RunResult` holds the same arrays. An exception inside the
+callback comes out as :class:`CallbackError` (sinks closed with "failed"). The callback that was
+installed before the run is always put back (:func:`control_callback`).
+"""
+
+from __future__ import annotations
+
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+
+import mujoco
+import numpy as np
+
+from ftstab_mj.control.laws import AdaptiveLaw, NominalLaw, RobustLaw, advance_phi_hat
+from ftstab_mj.disturbances import Signal
+from ftstab_mj.errors import CallbackError, ParameterError
+from ftstab_mj.plants.base import Plant
+from ftstab_mj.records import (COMPLETED, DIVERGED, FAILED, INTERRUPTED, LOOP_FIELDS, LoopInfo,
+                               MetricSettings, RunInfo, SampleBatch)
+
+# MuJoCo warnings that mean the simulation blew up (MuJoCo resets the data when they fire).
+_DIVERGENCE_WARNINGS = (mujoco.mjtWarning.mjWARN_BADQPOS, mujoco.mjtWarning.mjWARN_BADQVEL,
+                        mujoco.mjtWarning.mjWARN_BADQACC, mujoco.mjtWarning.mjWARN_BADCTRL)
+_SCALARS = tuple(f for f in LOOP_FIELDS if f not in ("t", "z"))
+
+
+@dataclass(frozen=True)
+class LoopSpec:
+    """One control loop on one actuated joint of a plant.
+
+    name: the plant's loop name ("cart"; "joint0", "joint1", ... for the arm).
+    law: NominalLaw | RobustLaw | AdaptiveLaw, with law.hong.r equal to the plant's r.
+    phi: injected disturbance signal (units: see the plant, chain units for the cart).
+    gamma: actuator gain factor signal (chain units for the cart; must not be state dependent).
+    z0: initial chain state (r,), z0[0] = q(0) - ref; empty means zeros.
+    ref: set point of the joint position (m or rad): z_1 = q - ref.
+    """
+
+    name: str
+    law: object
+    phi: Signal = field(default_factory=lambda: Signal("constant", 0.0))
+    gamma: Signal = field(default_factory=lambda: Signal("constant", 1.0))
+    z0: tuple = ()
+    ref: float = 0.0
+
+
+@dataclass
+class RunResult:
+    """What a run produced. loops: {loop name: {field: array}} (LOOP_FIELDS; z (n, r), others (n,));
+    body_pos (n, nbody, 3), body_quat (n, nbody, 4): the same arrays the sinks received."""
+
+    status: str
+    message: str
+    info: RunInfo
+    loops: dict
+    body_pos: np.ndarray
+    body_quat: np.ndarray
+
+    @property
+    def n_samples(self) -> int:
+        return int(len(next(iter(self.loops.values()))["t"]))
+
+
+@contextmanager
+def control_callback(callback):
+    """Install ``callback`` as MuJoCo's (process-global) control callback; always put back the
+    previous one, even when the body raises."""
+    previous = mujoco.get_mjcb_control()
+    mujoco.set_mjcb_control(callback)
+    try:
+        yield
+    finally:
+        mujoco.set_mjcb_control(previous)
+
+
+def law_kind(law) -> str:
+    """"nominal" | "robust" | "adaptive" (RunInfo naming)."""
+    for cls, name in ((NominalLaw, "nominal"), (RobustLaw, "robust"), (AdaptiveLaw, "adaptive")):
+        if isinstance(law, cls):
+            return name
+    return type(law).__name__
+
+
+def _law_params(law) -> dict:
+    if isinstance(law, RobustLaw):
+        return {"phibar": law.phibar, "gamma_m": law.gamma_m}
+    if isinstance(law, AdaptiveLaw):
+        return {k: getattr(law, k) for k in ("kappa", "delta", "rate", "eta", "eps")}
+    return {}
+
+
+def steps_per_period(period: float, physics_step: float) -> int:
+    """N with period = N * physics_step; ParameterError quoting both numbers otherwise."""
+    for name, v in (("physics_step", physics_step), ("period", period)):
+        if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)) or not (np.isfinite(v) and v > 0):
+            raise ParameterError(name, "a finite number > 0 (s)", v)
+    n = int(round(period / physics_step))
+    if n < 1 or abs(n * physics_step - period) > 1e-9 * period:
+        raise ParameterError("period", f"an integer multiple of the physics step {physics_step:g} s", period)
+    return n
+
+
+class Simulation:
+    """A plant under control, advanced batch by batch with :meth:`advance` while :meth:`installed`.
+
+    Between two batches the state can be saved and restored (:meth:`get_state`, :meth:`set_state`).
+    """
+
+    def __init__(self, plant: Plant, loops, period: float, physics_step: float, integrator: str = "euler",
+                 divergence_limit: float = 1e6):
+        self.N = steps_per_period(period, physics_step)
+        self.period, self.physics_step = float(period), float(physics_step)
+        if not (isinstance(divergence_limit, (int, float)) and divergence_limit > 0):
+            raise ParameterError("divergence_limit", "a number > 0", divergence_limit)
+        self.divergence_limit = float(divergence_limit)
+        self.plant = plant
+        self.loops = self._check_loops(plant, loops)
+        self.laws = tuple(L.law for L in self.loops)
+        n, r = plant.n, plant.r
+        self.model, self.data, self.model_xml = plant.compile(physics_step, integrator)
+        self.integrator = integrator
+        self.refs = np.array([float(L.ref) for L in self.loops])
+        z0 = np.array([L.z0 if len(L.z0) else np.zeros(r) for L in self.loops], dtype=float)
+        plant.set_initial(self.model, self.data, self.refs + z0[:, 0], z0)
+        self._body_ids = np.array([mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_BODY, b)
+                                   for b in plant.body_names], dtype=int)
+        self._z = np.empty((n, r))
+        self._u = np.zeros(n)  # control held over the period, chain units
+        self._scale = plant.dist_scale.astype(float)
+        self._pending = False
+        self.stop_reason = ""  # set when the run diverged
+        self._rec = None
+        self._row = -1
+        self.callback = self._control  # one bound-method object, so "is it installed" is an identity test
+
+    @staticmethod
+    def _check_loops(plant: Plant, loops) -> tuple:
+        loops = tuple(loops)
+        by_name = {}
+        for L in loops:
+            if not isinstance(L, LoopSpec):
+                raise ParameterError("loops", "LoopSpec entries", L)
+            if L.name not in plant.loop_names:
+                raise ParameterError("loops.name", f"a loop of {plant.model_name!r} ({', '.join(plant.loop_names)})", L.name)
+            if L.name in by_name:
+                raise ParameterError(f"loops.{L.name}", "one LoopSpec per loop", "a duplicate")
+            r = getattr(getattr(L.law, "hong", None), "r", None)
+            if r != plant.r:
+                raise ParameterError(f"loops.{L.name}.law", f"a law whose Hong controller has r = {plant.r}", r)
+            if len(L.z0) not in (0, plant.r) or not np.all(np.isfinite(np.asarray(L.z0, dtype=float))):
+                raise ParameterError(f"loops.{L.name}.z0", f"{plant.r} finite numbers", L.z0)
+            if L.gamma.state_dependent:
+                raise ParameterError(f"loops.{L.name}.gamma", "a signal that is not state dependent", L.gamma.kind)
+            by_name[L.name] = L
+        missing = [name for name in plant.loop_names if name not in by_name]
+        if missing:
+            raise ParameterError("loops", f"a LoopSpec for every loop of {plant.model_name!r}", f"none for {missing}")
+        return tuple(by_name[name] for name in plant.loop_names)
+
+    # -- description ------------------------------------------------------------------------------
+    def run_info(self, scenario: dict | None = None, metric_settings: MetricSettings | None = None) -> RunInfo:
+        phibar, gm, gM = self.plant.true_bounds([L.phi.bounds() for L in self.loops],
+                                                [L.gamma.bounds() for L in self.loops])
+        infos = []
+        for i, L in enumerate(self.loops):
+            h = L.law.hong
+            infos.append(LoopInfo(name=L.name, r=h.r, law=law_kind(L.law),
+                                  hong={"r": h.r, "k": h.k, "gains": list(h.gains), "form": h.form},
+                                  law_params=_law_params(L.law), true_phibar=float(phibar[i]),
+                                  true_gamma_m=float(gm[i]), true_gamma_M=float(gM[i])))
+        return RunInfo(scenario=dict(scenario or {}), loops=tuple(infos), period=self.period,
+                       physics_step=self.physics_step, metric_settings=metric_settings or MetricSettings(),
+                       model_xml=self.model_xml, body_names=tuple(self.plant.body_names))
+
+    # -- state ------------------------------------------------------------------------------------
+    @property
+    def time(self) -> float:
+        return float(self.data.time)
+
+    def get_state(self) -> np.ndarray:
+        """The full integration state (qpos, qvel, act, ctrl, qfrc_applied, userdata = phi_hat, time)."""
+        spec = mujoco.mjtState.mjSTATE_INTEGRATION
+        state = np.empty(mujoco.mj_stateSize(self.model, spec))
+        mujoco.mj_getState(self.model, self.data, state, spec)
+        return state
+
+    def set_state(self, state: np.ndarray) -> None:
+        mujoco.mj_setState(self.model, self.data, np.asarray(state, dtype=float), mujoco.mjtState.mjSTATE_INTEGRATION)
+        self.stop_reason = ""
+
+    def installed(self):
+        """Context manager installing this simulation's control callback (previous one restored)."""
+        return control_callback(self.callback)
+
+    # -- running ----------------------------------------------------------------------------------
+    def advance(self, n_samples: int) -> SampleBatch:
+        """Run n_samples control periods (fewer if the run diverges: see ``stop_reason``) and return
+        their samples. Must be called between samples, with the callback installed."""
+        if mujoco.get_mjcb_control() is not self.callback:
+            raise RuntimeError("Simulation.advance needs its control callback installed (use `with sim.installed():`)")
+        m, d, N, n = self.model, self.data, self.N, self.plant.n
+        k0 = int(round(d.time / self.period))
+        if abs(d.time - k0 * self.period) > 1e-6 * self.physics_step:
+            raise RuntimeError(f"advance called between samples (t = {d.time!r}, period {self.period!r})")
+        # Sample and step times as the ideal chain computes them (t_k + s * period / N).
+        self._t = (k0 + np.arange(n_samples)) * self.period
+        ts = (self._t[:, None] + np.arange(N) * (self.period / N)).ravel()
+        self._inj = np.empty((n_samples * N, n))  # injected phi at each step (state-dependent: filled at samples)
+        self._gain = np.empty((n_samples * N, n))
+        for i, L in enumerate(self.loops):
+            if not L.phi.state_dependent:
+                self._inj[:, i] = L.phi(ts)
+            self._gain[:, i] = L.gamma(ts)
+        self._start_batch(n_samples)
+        inj, gain, u, scale = self._inj, self._gain, self._u, self._scale
+        ctrl, qfrc = d.ctrl, d.qfrc_applied
+        integrating, refresh = self.plant.integrating, self.plant.refresh_before_sample
+        rate_scale = self.physics_step * scale
+        warn0 = self._warning_count()
+        step = mujoco.mj_step
+        for s in range(n_samples * N):
+            if s % N == 0:
+                if self._warning_count() != warn0:
+                    self.stop_reason = f"diverged before t = {d.time:.6g} s: MuJoCo reported a bad state ({self._warning_text()})"
+                    break
+                if refresh:
+                    mujoco.mj_forward(m, d)
+                self._s = s
+                self._pending = True
+                step(m, d)
+                if self.stop_reason:
+                    break
+            else:
+                ctrl[:n] = gain[s] * u
+                if not integrating:
+                    qfrc[:n] = scale * inj[s]
+                step(m, d)
+            if integrating:  # F_d' = m phi, held over the step
+                qfrc[:n] += rate_scale * inj[s]
+        else:
+            if self._warning_count() != warn0:
+                self.stop_reason = f"diverged before t = {d.time:.6g} s: MuJoCo reported a bad state ({self._warning_text()})"
+        return self.take_batch()
+
+    def _warning_count(self) -> int:
+        w = self.data.warning
+        return sum(w[int(k)].number for k in _DIVERGENCE_WARNINGS)
+
+    def _warning_text(self) -> str:
+        w = self.data.warning
+        return ", ".join(f"{k.name} x{w[int(k)].number}" for k in _DIVERGENCE_WARNINGS if w[int(k)].number)
+
+    def _start_batch(self, n_samples: int) -> None:
+        n_body = len(self._body_ids)
+        self._rec = [{"t": np.empty(n_samples), "z": np.empty((n_samples, self.plant.r)),
+                      **{f: np.empty(n_samples) for f in _SCALARS}} for _ in self.loops]
+        self._pos = np.empty((n_samples, n_body, 3))
+        self._quat = np.empty((n_samples, n_body, 4))
+        self._row = -1
+
+    def take_batch(self) -> SampleBatch:
+        """The samples recorded since the batch started (all of them after a normal advance, the
+        completed ones after an interruption), as a SampleBatch of copies; empty when taken twice."""
+        if self._rec is None:  # nothing recorded since the last take
+            self._start_batch(0)
+        k = self._row + 1
+        loops = {L.name: {f: a[:k].copy() for f, a in rec.items()} for L, rec in zip(self.loops, self._rec)}
+        batch = SampleBatch(loops=loops, body_pos=self._pos[:k].copy(), body_quat=self._quat[:k].copy())
+        self._rec = None
+        return batch
+
+    # -- the control callback ---------------------------------------------------------------------
+    def _control(self, m, d) -> None:
+        """MuJoCo's control callback: evaluates the law once per period, returns at once otherwise."""
+        if not self._pending:
+            return
+        self._pending = False
+        try:
+            self._sample(m, d)
+        except Exception as exc:
+            raise CallbackError(f"control callback failed at t = {d.time:.6g} s: {type(exc).__name__}: {exc}") from exc
+
+    def _sample(self, m, d) -> None:
+        """One control sample: read z, evaluate every law, write ctrl (and the disturbance), record."""
+        row, s, n = self._row + 1, self._s, self.plant.n
+        z = self._z
+        self.plant.sense(d, z)
+        z[:, 0] -= self.refs
+        t = self._t[row]
+        zmax = float(np.max(np.abs(z)))
+        if not zmax <= self.divergence_limit:  # also catches NaN
+            self.stop_reason = (f"diverged at t = {t:.6g} s: max |z| = {zmax:.3g} is beyond the divergence "
+                                f"limit {self.divergence_limit:g}")
+            d.ctrl[:n] = 0.0
+            return
+        ud = d.userdata
+        for i, (law, L, rec) in enumerate(zip(self.laws, self.loops, self._rec)):
+            phi_hat = ud[i]
+            out = law.output(z[i], phi_hat)
+            if L.phi.state_dependent:  # worst case: held over the period with this sample's dV1/dz_r
+                self._inj[s:s + self.N, i] = L.phi(t, out.dV1_dzr)
+            u = float(out.u)
+            if not np.isfinite(u):
+                self.stop_reason = f"diverged at t = {t:.6g} s: the control of loop {L.name!r} is {u}"
+                d.ctrl[:n] = 0.0
+                return
+            self._u[i] = u
+            rec["t"][row] = t
+            rec["z"][row] = z[i]
+            rec["u"][row] = u
+            rec["u0"][row] = out.u0
+            rec["V1"][row] = out.V1
+            rec["dV1_dzr"][row] = out.dV1_dzr
+            rec["phi_hat"][row] = phi_hat
+            rec["gamma_hat"][row] = out.gamma_hat
+            ud[i] = advance_phi_hat(law, out.V1, phi_hat, self.period)
+        gain, inj = self._gain[s], self._inj[s]
+        d.ctrl[:n] = gain * self._u
+        if not self.plant.integrating:
+            d.qfrc_applied[:n] = self._scale * inj
+        phi, gamma = self.plant.true_chain(m, d, self._u, gain, inj)
+        for i, rec in enumerate(self._rec):
+            rec["phi"][row] = phi[i]
+            rec["gamma"][row] = gamma[i]
+        self._pos[row] = d.xpos[self._body_ids]
+        self._quat[row] = d.xquat[self._body_ids]
+        self._row = row
+
+
+def sample_count(duration: float, period: float) -> int:
+    """Number of control samples of a run (as the ideal chain counts them)."""
+    if isinstance(duration, bool) or not isinstance(duration, (int, float, np.integer, np.floating)) or not (
+            np.isfinite(duration) and duration > 0):
+        raise ParameterError("duration", "a finite number > 0 (s)", duration)
+    return max(1, int(round(duration / period)))
+
+
+def simulate(plant: Plant, loops, duration: float, period: float, physics_step: float, integrator: str = "euler",
+             sinks=(), batch_size: int = 1000, divergence_limit: float = 1e6, scenario_dict: dict | None = None,
+             metric_settings: MetricSettings | None = None, metrics=None) -> RunResult:
+    """Run ``loops`` (LoopSpec, one per plant loop) on ``plant`` for ``duration`` seconds.
+
+    period: control period (s), an integer multiple of physics_step (s); integrator: "euler"
+    (default), "rk4" or "implicitfast". Samples go to every sink (records.Sink) in batches of
+    ``batch_size`` samples. metrics: optional callable (RunInfo, {loop: {field: array}}) -> dict
+    whose result is handed to the sinks' close. Returns a RunResult (status completed, diverged or
+    interrupted); raises CallbackError when the controller raised (sinks closed with "failed").
+    """
+    sim = Simulation(plant, loops, period, physics_step, integrator, divergence_limit)
+    n_total = sample_count(duration, period)
+    if isinstance(batch_size, bool) or not isinstance(batch_size, (int, np.integer)) or batch_size < 1:
+        raise ParameterError("batch_size", "an integer >= 1", batch_size)
+    info = sim.run_info(scenario_dict, metric_settings)
+    batches, opened = [], []
+    status, message = COMPLETED, ""
+
+    def emit(batch):
+        batches.append(batch)
+        if len(batch):
+            for sink in opened:
+                sink.write(batch)
+
+    try:
+        for sink in sinks:
+            sink.open(info)
+            opened.append(sink)
+        with sim.installed():
+            done = 0
+            while done < n_total:
+                batch = sim.advance(min(batch_size, n_total - done))
+                emit(batch)
+                done += len(batch)
+                if sim.stop_reason:
+                    status, message = DIVERGED, sim.stop_reason
+                    break
+    except KeyboardInterrupt:
+        emit(sim.take_batch())
+        status, message = INTERRUPTED, f"interrupted by the user at t = {sim.time:.6g} s"
+    except BaseException as exc:
+        _close(opened, FAILED, {}, f"{type(exc).__name__}: {exc}")
+        raise
+    result = RunResult(status=status, message=message, info=info, **_concatenate(batches, sim))
+    _close(opened, status, metrics(info, result.loops) if metrics else {}, message)
+    return result
+
+
+def _close(sinks, status, metrics, message) -> None:
+    """Close every sink; the first error raised by a close is re-raised after all are closed."""
+    first = None
+    for sink in sinks:
+        try:
+            sink.close(status, metrics, message)
+        except Exception as exc:  # noqa: BLE001 - keep closing the others
+            first = first or exc
+    if first is not None:
+        raise first
+
+
+def _concatenate(batches, sim) -> dict:
+    if not batches:
+        batches = [sim.take_batch()]
+    loops = {name: {f: np.concatenate([b.loops[name][f] for b in batches]) for f in LOOP_FIELDS}
+             for name in batches[0].loops}
+    return {"loops": loops, "body_pos": np.concatenate([b.body_pos for b in batches]),
+            "body_quat": np.concatenate([b.body_quat for b in batches])}
