@@ -29,12 +29,12 @@ installed before the run is always put back (:func:`control_callback`).
 
 from __future__ import annotations
 
-from contextlib import contextmanager
 from dataclasses import dataclass, field
 
 import mujoco
 import numpy as np
 
+from ftstab_mj.callback import control_callback
 from ftstab_mj.control.laws import AdaptiveLaw, NominalLaw, RobustLaw, advance_phi_hat
 from ftstab_mj.disturbances import Signal
 from ftstab_mj.errors import CallbackError, ParameterError
@@ -83,18 +83,6 @@ class RunResult:
     @property
     def n_samples(self) -> int:
         return int(len(next(iter(self.loops.values()))["t"]))
-
-
-@contextmanager
-def control_callback(callback):
-    """Install ``callback`` as MuJoCo's (process-global) control callback; always put back the
-    previous one, even when the body raises."""
-    previous = mujoco.get_mjcb_control()
-    mujoco.set_mjcb_control(callback)
-    try:
-        yield
-    finally:
-        mujoco.set_mjcb_control(previous)
 
 
 def law_kind(law) -> str:
@@ -366,8 +354,8 @@ def simulate(plant: Plant, loops, duration: float, period: float, physics_step: 
 
     period: control period (s), an integer multiple of physics_step (s); integrator: "euler"
     (default), "rk4" or "implicitfast". Samples go to every sink (records.Sink) in batches of
-    ``batch_size`` samples. metrics: optional callable (RunInfo, {loop: {field: array}}) -> dict
-    whose result is handed to the sinks' close. Returns a RunResult (status completed, diverged or
+    ``batch_size`` samples. metrics: optional callable (RunInfo, {loop: {field: array}}, status) -> dict
+    (e.g. ftstab_mj.metrics.compute_metrics) whose result is handed to the sinks' close. Returns a RunResult (status completed, diverged or
     interrupted); raises CallbackError when the controller raised (sinks closed with "failed").
     """
     sim = Simulation(plant, loops, period, physics_step, integrator, divergence_limit)
@@ -400,11 +388,14 @@ def simulate(plant: Plant, loops, duration: float, period: float, physics_step: 
     except KeyboardInterrupt:
         emit(sim.take_batch())
         status, message = INTERRUPTED, f"interrupted by the user at t = {sim.time:.6g} s"
-    except BaseException as exc:
-        _close(opened, FAILED, {}, f"{type(exc).__name__}: {exc}")
+    except BaseException as exc:  # the controller (or a sink) failed: keep the samples, close, re-raise
+        try:
+            emit(sim.take_batch())
+        finally:
+            _close(opened, FAILED, {}, f"{type(exc).__name__}: {exc}")
         raise
     result = RunResult(status=status, message=message, info=info, **_concatenate(batches, sim))
-    _close(opened, status, metrics(info, result.loops) if metrics else {}, message)
+    _close(opened, status, metrics(info, result.loops, status) if metrics else {}, message)
     return result
 
 

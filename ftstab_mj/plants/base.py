@@ -25,6 +25,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
+from ftstab_mj.callback import control_callback
 from ftstab_mj.errors import ParameterError
 
 MODELS_DIR = Path(__file__).resolve().parents[2] / "models"
@@ -99,8 +100,10 @@ class Plant:
         spec.option.timestep = float(physics_step)
         spec.option.integrator = INTEGRATORS[integrator]
         spec.nuserdata = USERDATA_SLOTS * self.n
-        model = spec.compile()
-        return model, mujoco.MjData(model), spec.to_xml()
+        with control_callback(None):  # compiling runs a forward pass that would call it (callback.py)
+            model = spec.compile()
+            xml = spec.to_xml()
+        return model, mujoco.MjData(model), xml
 
     # -- hooks used by the run loop ---------------------------------------------------------------
     def set_initial(self, m, d, q0: np.ndarray, z0: np.ndarray) -> None:
