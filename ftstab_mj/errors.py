@@ -31,3 +31,11 @@ class LogError(FtstabError, ValueError):
 class CallbackError(FtstabError, RuntimeError):
     """An exception raised inside the MuJoCo control callback (the controller), re-raised with the
     simulation time; the original exception is its __cause__."""
+
+
+class SweepError(ScenarioError):
+    """A sweep file (or a sweep output directory) is unusable: same one-line format as ScenarioError."""
+
+
+class EngineError(FtstabError, RuntimeError):
+    """The execution engine of a sweep cannot be started or reached (e.g. no Dask scheduler at an address)."""

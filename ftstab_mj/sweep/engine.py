@@ -1,0 +1,103 @@
+"""Where the runs of a sweep execute: in this process, on local processes, or on a Dask cluster.
+
+Every engine calls the same picklable ``task(params) -> {"status", "error", "metrics"}`` (params:
+((key path, value), ...)) through
+:func:`guarded` and yields ``(index, result)`` as runs finish, in any order (the caller orders the
+table). A run's result depends on its parameters only, so the table does not depend on the engine.
+
+- ``serial``: one run after the other in this process.
+- ``processes``: a ``concurrent.futures`` pool of ``workers`` fresh (spawned) processes.
+- ``dask``: a ``dask.distributed`` cluster, a ``LocalCluster`` of ``workers`` single-threaded
+  processes by default, or the scheduler at ``scheduler`` (its workers must have ftstab_mj
+  installed). Processes, not threads: MuJoCo's control callback is one slot per process.
+
+A result of ``None`` means the run was lost by the engine (its worker process died): it is not a
+result of the run and the caller must not record it as one.
+"""
+
+from __future__ import annotations
+
+import time
+import uuid
+from collections.abc import Callable, Iterable, Iterator
+
+from ftstab_mj.errors import EngineError
+from ftstab_mj.records import FAILED
+
+ENGINES = ("serial", "processes", "dask")
+
+
+def guarded(task: Callable[[tuple], dict], params: tuple) -> dict:
+    """``task(params)`` with any exception turned into a failed result; adds ``elapsed_s`` (wall s).
+
+    A failed result is ``{"status": "failed", "error": "<ExceptionType>: <message>", "metrics": {}}``.
+    KeyboardInterrupt is not caught: an interrupted run is not a result.
+    """
+    t0 = time.perf_counter()
+    try:
+        out = dict(task(params))
+    except Exception as exc:  # noqa: BLE001 - any failure of one run is recorded, the sweep goes on
+        out = {"status": FAILED, "error": f"{type(exc).__name__}: {exc}", "metrics": {}}
+    out["elapsed_s"] = time.perf_counter() - t0
+    return out
+
+
+def execute(items: Iterable[tuple[int, tuple]], task: Callable[[tuple], dict], engine: str = "serial",
+            workers: int = 1, scheduler: str | None = None) -> Iterator[tuple[int, dict | None]]:
+    """Run ``task`` on every (index, params); yield (index, result or None if lost) as runs finish."""
+    items = list(items)
+    if engine == "serial":
+        for i, params in items:
+            yield i, guarded(task, params)
+    elif engine == "processes":
+        yield from _processes(items, task, workers)
+    elif engine == "dask":
+        yield from _dask(items, task, workers, scheduler)
+    else:
+        raise EngineError(f"engine: expected one of {', '.join(ENGINES)}, found {engine!r}")
+
+
+def _processes(items, task, workers) -> Iterator[tuple[int, dict | None]]:
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+
+    # spawn, not fork: a forked child would inherit this process's MuJoCo and thread state
+    pool = ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"))
+    try:
+        futures = {pool.submit(guarded, task, params): i for i, params in items}
+        for fut in as_completed(futures):
+            exc = fut.exception()
+            yield futures[fut], (None if exc is not None else fut.result())
+    finally:
+        pool.shutdown(wait=True, cancel_futures=True)
+
+
+def _dask(items, task, workers, scheduler) -> Iterator[tuple[int, dict | None]]:
+    import logging
+
+    from distributed import Client, LocalCluster, as_completed
+
+    cluster = None
+    try:
+        if scheduler:
+            client = Client(scheduler, timeout="10s")
+        else:
+            cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                                   dashboard_address=None, silence_logs=logging.ERROR)
+            client = Client(cluster)
+    except (OSError, TimeoutError) as exc:
+        if cluster is not None:
+            cluster.close()
+        where = f"the scheduler at {scheduler}" if scheduler else f"a local cluster of {workers} workers"
+        raise EngineError(f"--scheduler: expected a reachable Dask scheduler, could not reach {where} ({exc})") from None
+    tag = uuid.uuid4().hex[:8]  # keys unique to this sweep on a shared scheduler
+    try:
+        futures = {client.submit(guarded, task, params, key=f"ftstab-{tag}-{i}", pure=False): i for i, params in items}
+        for fut in as_completed(futures):
+            lost = fut.status != "finished"  # "error": the task killed its workers (KilledWorker)
+            yield futures[fut], (None if lost else fut.result())
+            fut.release()
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()

@@ -1,0 +1,35 @@
+"""A sweep task on the ideal chain (no MuJoCo, no scenario file), for the tests of the sweep engine.
+
+Parameters (key paths of the rows): ``r`` (2 or 3), ``period`` (s), ``amplitude`` (of a sine
+phi, chain units), ``k`` (Hong's degree; k > 0 is rejected by HongController: a failing row).
+Picklable, importable by worker processes (the tests run from the repository root).
+"""
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ftstab_mj.control import HongController, RobustLaw
+from ftstab_mj.disturbances import Signal
+from ftstab_mj.ideal_chain import simulate_chain
+
+GAINS = {2: (1.0, 2.0), 3: (1.0, 1.7, 5.0)}
+DEGREE = {2: -0.2, 3: -0.1}
+
+
+@dataclass(frozen=True)
+class ChainTask:
+    duration: float = 1.0  # s of simulated time
+
+    def __call__(self, params) -> dict:
+        p = dict(params)
+        r = int(p.get("r", 2))
+        law = RobustLaw(HongController(r, p.get("k", DEGREE[r]), GAINS[r]), phibar=1.0, gamma_m=1.0)
+        z0 = np.zeros(r)
+        z0[0] = 0.5
+        run = simulate_chain(law, z0, p.get("period", 1e-2), self.duration,
+                             phi=Signal("sine", amplitude=p.get("amplitude", 0.5), freq=1.0))
+        tail = run.z[int(0.8 * len(run.t)):, 0]
+        return {"status": "completed", "error": "",
+                "metrics": {"final_abs_z1": float(np.max(np.abs(tail))), "V1_final": float(run.V1[-1]),
+                            "z_final": [float(x) for x in run.z_final]}}
