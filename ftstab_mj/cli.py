@@ -48,6 +48,86 @@ def cmd_certify(args) -> int:
     return 0
 
 
+def _flatten(d, prefix=""):
+    """{"a": {"b": 1}} -> {"a.b": 1} (lists stay leaves)."""
+    out = {}
+    for k, v in d.items():
+        p = f"{prefix}.{k}" if prefix else str(k)
+        out.update(_flatten(v, p) if isinstance(v, dict) else {p: v})
+    return out
+
+
+def _read_log(path):
+    """read_log + the truncation warning on stderr."""
+    from ftstab_mj.logs.reader import read_log
+
+    log = read_log(path)
+    if log.warning:
+        print(f"warning: {log.warning}", file=sys.stderr)
+    return log
+
+
+def _replayed_metrics(log):
+    """Metrics recomputed from the log's arrays, with the recorded status (interrupted if none)."""
+    from ftstab_mj.metrics import compute_metrics
+    from ftstab_mj.records import INTERRUPTED
+
+    status = log.recorded["status"] if log.recorded else INTERRUPTED
+    return compute_metrics(log.info, log.loops, status)
+
+
+def cmd_replay(args) -> int:
+    from ftstab_mj.metrics import format_table
+
+    log = _read_log(args.log)
+    metrics = _replayed_metrics(log)
+    diff = []
+    if log.recorded is not None:
+        rec, now = _flatten(log.recorded["metrics"]), _flatten(metrics)
+        diff = [f"  {k}: recorded {rec.get(k)!r}, recomputed {now.get(k)!r}"
+                for k in sorted(set(rec) | set(now)) if rec.get(k) != now.get(k)]
+    if args.rrd:
+        from ftstab_mj.logs.rerun_sink import write_rrd
+
+        message = log.recorded.get("message", "") if log.recorded else "truncated log"
+        write_rrd(args.rrd, log.info, log.loops, (log.pose_t, log.pose_pos, log.pose_quat), metrics["status"],
+                  metrics, message)
+    if args.json:
+        print(json.dumps(metrics, indent=2, allow_nan=False))
+    else:
+        v = log.versions
+        print(f"{args.log}: {log.n_samples} samples, {'complete' if log.complete else 'truncated'} log"
+              f" (ftstab_mj {v.get('ftstab_mj', '?')}, MuJoCo {v.get('mujoco', '?')})")
+        print(format_table(metrics))
+        if log.recorded is None:
+            print("recorded metrics: none (the run did not finish); status taken as interrupted")
+        elif not diff:
+            print("recorded metrics: identical to the ones recomputed from the samples")
+        if args.rrd:
+            print(f"wrote {args.rrd}")
+    if diff:
+        print(f"{args.log}: metrics recomputed from the log differ from the recorded ones:", file=sys.stderr)
+        print("\n".join(diff), file=sys.stderr)
+        return 1
+    return 0
+
+
+def cmd_check(args) -> int:
+    from ftstab_mj.expectations import check_metrics, load_expectations
+
+    expected = load_expectations(args.expect)
+    log = _read_log(args.log)
+    outcomes = check_metrics(_replayed_metrics(log), expected, source=args.expect)
+    failed = [o for o in outcomes if not o.ok]
+    if not failed:
+        print(f"{args.log}: all {len(outcomes)} expectations of {args.expect} hold")
+        return 0
+    print(f"{args.log}: {len(failed)} of {len(outcomes)} expectations of {args.expect} failed:")
+    for o in failed:
+        print(f"  {o.line}")
+    return 1
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = _Parser(prog="ftstab", description=(
         "Testbed for the finite-time robust and adaptive controllers of Harmouche, Laghrouche and "
@@ -64,6 +144,23 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--seed", type=int, default=0, help="seed of the sampling (default 0)")
     c.add_argument("--json", action="store_true", help="print JSON (keys c, alpha, c_prime, alpha_prime, certified, ...)")
     c.set_defaults(func=cmd_certify)
+
+    rp = sub.add_parser("replay", help="recompute the metrics of a run from its MCAP log",
+                        description="Read LOG.mcap (a truncated log up to its last complete chunk), recompute "
+                                    "the metrics from the logged samples and compare them with the ones recorded "
+                                    "at the end of the run (exit 1 if they differ).")
+    rp.add_argument("log", metavar="LOG.mcap")
+    rp.add_argument("--json", action="store_true", help="print the metrics as JSON")
+    rp.add_argument("--rrd", metavar="OUT.rrd", help="also write a Rerun recording of the log")
+    rp.set_defaults(func=cmd_replay)
+
+    ck = sub.add_parser("check", help="compare a log's metrics with pinned values and tolerances",
+                        description="Exit 0 when every expectation of EXPECT.toml holds for the metrics "
+                                    "recomputed from LOG.mcap, 1 with the failing ones listed otherwise. Format: "
+                                    "see ftstab_mj/expectations.py.")
+    ck.add_argument("log", metavar="LOG.mcap")
+    ck.add_argument("--expect", required=True, metavar="EXPECT.toml")
+    ck.set_defaults(func=cmd_check)
     return p
 
 

@@ -113,12 +113,18 @@ class RerunSink:
                 rec.send_columns(f"/loop/{name}/{f}", indexes=idx,
                                  columns=rr.Scalars.columns(scalars=np.asarray(arrays[f], dtype=float)))
         if t is not None and batch.body_pos.shape[1] > 0:
-            idx = [rr.TimeColumn(TIMELINE, duration=t)]
-            for b, body in enumerate(self._info.body_names):
-                q = batch.body_quat[:, b]
-                rec.send_columns(f"/world/{body}", indexes=idx, columns=rr.Transform3D.columns(
-                    translation=batch.body_pos[:, b], quaternion=np.column_stack([q[:, 1], q[:, 2], q[:, 3], q[:, 0]])))
+            self.write_poses(t, batch.body_pos, batch.body_quat)
         rec.flush()
+
+    def write_poses(self, t, pos, quat) -> None:
+        """Body poses at times t (m,) s: pos (m, nbody, 3) m, quat (m, nbody, 4) (w, x, y, z)."""
+        import rerun as rr
+
+        idx = [rr.TimeColumn(TIMELINE, duration=np.asarray(t, dtype=float))]
+        for b, body in enumerate(self._info.body_names):
+            q = quat[:, b]
+            self._rec.send_columns(f"/world/{body}", indexes=idx, columns=rr.Transform3D.columns(
+                translation=pos[:, b], quaternion=np.column_stack([q[:, 1], q[:, 2], q[:, 3], q[:, 0]])))
 
     def close(self, status: str, metrics: dict, message: str = "") -> None:
         import rerun as rr
@@ -138,3 +144,16 @@ def _pretty(obj) -> str:
     import json
 
     return json.dumps(obj, indent=2, default=str)
+
+
+def write_rrd(path, info: RunInfo, loops: dict, poses, status: str, metrics: dict, message: str = "") -> None:
+    """A whole recording at once (replay --rrd): loops {name: {field: array}}, poses (t, pos, quat)
+    at their own rate (see :meth:`RerunSink.write_poses`)."""
+    sink = RerunSink(path)
+    sink.open(info)
+    n = min((len(a["t"]) for a in loops.values()), default=0)
+    sink.write(SampleBatch(loops, np.zeros((n, 0, 3)), np.zeros((n, 0, 4))))
+    t, pos, quat = poses
+    if len(t) and pos.shape[1]:
+        sink.write_poses(t, pos, quat)
+    sink.close(status, metrics, message)
