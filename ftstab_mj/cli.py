@@ -82,7 +82,7 @@ def cmd_replay(args) -> int:
     log = _read_log(args.log)
     metrics = _replayed_metrics(log)
     diff = []
-    if log.recorded is not None:
+    if log.recorded and log.recorded.get("metrics"):  # a failed run records its status without metrics
         rec, now = _flatten(log.recorded["metrics"]), _flatten(metrics)
         diff = [f"  {k}: recorded {rec.get(k)!r}, recomputed {now.get(k)!r}"
                 for k in sorted(set(rec) | set(now)) if rec.get(k) != now.get(k)]
@@ -101,6 +101,8 @@ def cmd_replay(args) -> int:
         print(format_table(metrics))
         if log.recorded is None:
             print("recorded metrics: none (the run did not finish); status taken as interrupted")
+        elif not log.recorded.get("metrics"):
+            print(f"recorded metrics: none (run {log.recorded['status']}: {log.recorded.get('message', '')})")
         elif not diff:
             print("recorded metrics: identical to the ones recomputed from the samples")
         if args.rrd:

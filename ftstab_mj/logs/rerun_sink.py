@@ -133,7 +133,9 @@ class RerunSink:
 
         if self._rec is None:
             return
-        text = f"status: {status}\n" + (f"message: {message}\n" if message else "") + "\n" + format_table(metrics)
+        text = f"status: {status}\n" + (f"message: {message}\n" if message else "")
+        if metrics:  # a failed run is closed without metrics
+            text += "\n" + format_table(metrics)
         self._rec.log("/run/status", rr.TextDocument(text, media_type="text/plain"), static=True)
         self._rec.flush()
         self._rec.disconnect()
