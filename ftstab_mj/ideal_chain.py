@@ -17,6 +17,7 @@ from math import factorial
 
 import numpy as np
 
+from ftstab_mj import native as native_path
 from ftstab_mj.control.laws import advance_phi_hat
 from ftstab_mj.disturbances import Signal
 from ftstab_mj.errors import ParameterError
@@ -54,12 +55,14 @@ class ChainRun:
 
 
 def simulate_chain(law, z0, period: float, duration: float, phi: Signal | None = None,
-                   gamma: Signal | None = None, substeps: int = 1, phi_hat0=0.0) -> ChainRun:
+                   gamma: Signal | None = None, substeps: int = 1, phi_hat0=0.0, native=False) -> ChainRun:
     """Run ``law`` on the ideal chain from z0 (r,) or a batch (n, r) for ``duration`` seconds.
 
     period: control period (s); substeps: sub-intervals per period over which phi and gamma are
     held (>= 1). phi defaults to 0 and gamma to 1. A state-dependent phi (worst case) is evaluated
     with the controller's dV1/dz_r of the current sample.
+    native: False runs this NumPy loop (the reference); True | "auto" runs the same computation in
+    the C kernel (ftstab_mj.native), which agrees with it to rounding.
     """
     if not (period > 0 and np.isfinite(period)):
         raise ParameterError("period", "a finite number > 0 (s)", period)
@@ -74,10 +77,12 @@ def simulate_chain(law, z0, period: float, duration: float, phi: Signal | None =
     Phi, G = chain_transition(r, dt)
     batch = z.shape[:-1]
     ph = np.broadcast_to(np.asarray(phi_hat0, dtype=float), batch).copy()
+    t = np.arange(n) * period
+    if native_path.use_native(native, law):
+        return _simulate_chain_native(law, z, ph, t, period, substeps, Phi, G, phi, gamma)
     names = ("u", "u0", "V1", "dV1_dzr", "phi_hat", "gamma_hat", "phi", "gamma")
     rec = {k: np.empty((n,) + batch) for k in names}
     zs = np.empty((n,) + z.shape)
-    t = np.arange(n) * period
     for k in range(n):
         out = law.output(z, ph)
         zs[k] = z
@@ -92,3 +97,17 @@ def simulate_chain(law, z0, period: float, duration: float, phi: Signal | None =
             z = z @ Phi.T + (w_phi + w_gam * out.u)[..., None] * G
         ph = advance_phi_hat(law, out.V1, ph, period)
     return ChainRun(t=t, z=zs, z_final=z, **rec)
+
+
+def _simulate_chain_native(law, z, ph, t, period, substeps, Phi, G, phi, gamma) -> ChainRun:
+    """simulate_chain's loop in the C kernel: same inputs (phi and gamma tabulated at the same
+    sub-step instants t_k + s dt), same outputs."""
+    batch, r, n = z.shape[:-1], z.shape[-1], len(t)
+    t_sub = t[:, None] + np.arange(substeps) * (period / substeps)  # (n, substeps): t[k] + s * dt
+    phi_in, phi_table = native_path.chain_input(phi, t_sub)  # the tables must outlive the call
+    gam_in, gam_table = native_path.chain_input(gamma, t_sub)
+    zf = np.ascontiguousarray(z.reshape(-1, r))
+    phf = np.ascontiguousarray(ph.reshape(-1))
+    zs, rec = native_path.simulate_chain_kernel(law, zf, phf, n, substeps, period, Phi, G, phi_in, gam_in)
+    return ChainRun(t=t, z=zs.reshape((n,) + batch + (r,)), z_final=zf.reshape(batch + (r,)),
+                    **{k: v.reshape((n,) + batch) for k, v in rec.items()})
