@@ -21,7 +21,7 @@ Cross-check derivations (h = physics step, N = steps per control period, inputs 
 import numpy as np
 import pytest
 
-from ftstab_mj.control import HongController, RobustLaw
+from ftstab_mj.control import AdaptiveLaw, HongController, RobustLaw, certify, theorem3_bounds
 from ftstab_mj.disturbances import Signal
 from ftstab_mj.ideal_chain import simulate_chain
 from ftstab_mj.plants import make_plant
@@ -69,3 +69,74 @@ def test_euler_cart_converges_to_the_ideal_chain_at_first_order(r, period):
     fine = _transient_discrepancy(*_both(r, period, 100, "euler", duration=4.0))
     ratio = coarse / fine
     assert np.all((ratio > 8.0) & (ratio < 12.0)), (coarse, fine)
+
+
+def test_r3_accelerometer_delay_is_zero_with_refresh_and_one_physics_step_without():
+    """Measure the sensing delay of x''. With Euler and N = 1 the actuator state and the injected
+    force advance exactly by h (g u) and h m phi per step, so the true x'' obeys
+    x''(t_{k+1}) - x''(t_k) = h (phi_k + gamma_k u_k) to round-off. The sensed z3 satisfies this
+    recursion shifted by the sensor's delay d (in steps): z3_{k+1} - z3_k = h w_{k-d}."""
+    h = 0.002
+    law = RobustLaw(HONG[3], phibar=0.5, gamma_m=0.8)
+    residual = {}
+    for refresh in (True, False):
+        res = simulate(make_plant("cart_integrating", {"mass": 2.0, "sensor_refresh": refresh}),
+                       [LoopSpec("cart", law, PHI, GAMMA, Z0[3])], duration=1.0, period=h, physics_step=h)
+        s = res.loops["cart"]
+        w = s["phi"] + s["gamma"] * s["u"]
+        dz3 = np.diff(s["z"][:, 2])
+        residual[refresh] = {d: np.abs(dz3[2:] - h * w[2 - d:len(w) - 1 - d]).max() for d in (0, 1, 2)}
+    assert residual[True][0] < 1e-12 and min(residual[True][1], residual[True][2]) > 1e-5
+    assert residual[False][1] < 1e-12 and min(residual[False][0], residual[False][2]) > 1e-5
+
+
+def _settle(t, V1, level):
+    """First sample time with V1 <= level (inf if never)."""
+    below = np.flatnonzero(V1 <= level)
+    return t[below[0]] if len(below) else np.inf
+
+
+GAIN_UNCERTAINTY = Signal("random", offset=1.0, amplitude=0.2, freq=2.0, seed=5)  # gamma in [0.8, 1.2]
+DISTURBANCES = [Signal("random", amplitude=0.4, freq=3.0, seed=2), Signal("worst_case", amplitude=0.4),
+                Signal("square", amplitude=0.4, freq=0.7)]
+
+
+@pytest.mark.parametrize("phi", DISTURBANCES, ids=lambda s: s.kind)
+@pytest.mark.parametrize("r", [2, 3])
+def test_robust_law_stabilizes_the_cart_within_the_theorem_1_time(r, phi):
+    """Bounds assumed by the law (phibar 0.5, gamma_m 0.8) cover the true ones (0.4, [0.8, 1.2]):
+    Theorem 2 gives dV1/dt <= -c V1^alpha, so V1 reaches 0 before T = V1(0)^(1-alpha)/(c (1-alpha)).
+    Sampled at 5 ms the closed loop reaches a chattering band instead: V1 <= 1e-3 before T and
+    stays there over the last 20 % of the run."""
+    law = RobustLaw(HONG[r], phibar=0.5, gamma_m=0.8)
+    res = simulate(make_plant(MODEL[r], {"mass": 2.0}), [LoopSpec("cart", law, phi, GAIN_UNCERTAINTY, Z0[r])],
+                   duration=6.0, period=0.005, physics_step=0.001)
+    (info,) = res.info.loops
+    assert info.true_phibar <= law.phibar and info.true_gamma_m >= law.gamma_m
+    s = res.loops["cart"]
+    assert np.abs(s["phi"]).max() <= 0.4 and s["gamma"].min() >= 0.8 and s["gamma"].max() <= 1.2
+    cert = certify(HONG[r])
+    T = s["V1"][0] ** (1 - cert.alpha) / (cert.c * (1 - cert.alpha))
+    assert _settle(s["t"], s["V1"], 1e-3) <= T
+    assert s["V1"][-len(s["V1"]) // 5:].max() <= 1e-3
+
+
+@pytest.mark.parametrize("phi", DISTURBANCES[:2], ids=lambda s: s.kind)
+@pytest.mark.parametrize("r", [2, 3])
+def test_adaptive_law_stabilizes_the_cart_without_the_bounds_within_theorem_3(r, phi):
+    """The adaptive law knows neither phibar nor gamma_m. Theorem 3 (with the TRUE bounds 0.4 and
+    0.8, from RunInfo): liminf V1 <= eps, limsup V1 <= Delta, limsup phi_hat <= its bound; checked
+    on the second half of the run."""
+    eps = 1e-3
+    law = AdaptiveLaw(HONG[r], kappa=1.0, delta=0.1, rate=2.0, eta=0.5, eps=eps)
+    res = simulate(make_plant(MODEL[r], {"mass": 2.0}), [LoopSpec("cart", law, phi, GAIN_UNCERTAINTY, Z0[r])],
+                   duration=12.0, period=0.005, physics_step=0.001)
+    (info,) = res.info.loops
+    bounds = theorem3_bounds(certify(HONG[r]), info.true_phibar, info.true_gamma_m, law.kappa, law.delta,
+                             law.rate, eps)
+    s = res.loops["cart"]
+    late = slice(len(s["V1"]) // 2, None)
+    assert s["V1"][late].min() <= eps
+    assert s["V1"][late].max() <= bounds.Delta
+    assert s["phi_hat"][late].max() <= bounds.phi_hat_limsup
+    assert s["V1"][0] > 100 * bounds.Delta  # it started far outside: the law did the work
