@@ -5,6 +5,9 @@
 Models (files in models/):
   "cart"              r = 2, one loop "cart"  (params: mass, friction, damping)
   "cart_integrating"  r = 3, one loop "cart"  (params: mass, friction, damping, sensor_refresh)
+  "arm"               r = 2, loops "joint0", "joint1": two stacked hinge joints in a vertical plane
+                      (params: link_lengths, link_masses, friction, damping; the workspace of the
+                      bounds: q_min, q_max, qd_max, u_max, grid)
 
 An unknown model or parameter raises ParameterError naming it. See base.py for how the run loop
 drives a plant (inputs, sensing, userdata) and each module for its physics and units.
@@ -13,10 +16,11 @@ drives a plant (inputs, sensing, userdata) and each module for its physics and u
 from __future__ import annotations
 
 from ftstab_mj.errors import ParameterError
+from ftstab_mj.plants.arm import ArmPlant
 from ftstab_mj.plants.base import Plant
 from ftstab_mj.plants.cart import CartPlant
 
-MODELS = ("cart", "cart_integrating")
+MODELS = ("cart", "cart_integrating", "arm")
 
 
 def make_plant(model: str, params: dict | None = None) -> Plant:
@@ -26,6 +30,8 @@ def make_plant(model: str, params: dict | None = None) -> Plant:
         return CartPlant(model, params, integrating=False)
     if model == "cart_integrating":
         return CartPlant(model, params, integrating=True)
+    if model == "arm":
+        return ArmPlant(model, params)
     raise ParameterError("model", "one of " + ", ".join(MODELS), model)
 
 

@@ -17,7 +17,8 @@ Optional physics, off unless asked: ``friction`` (N, dry friction of the slide, 
 ``damping`` (N s/m, viscous). The recorded true phi adds the viscous force (r = 2: -b x'/m); dry
 friction is a constraint force solved after the controller runs, so it is not in the recorded
 phi but is in the bound true_phibar (+ friction/m). For r = 3 the recorded phi is the injected rate
-only (the derivative of friction forces is not a bounded signal).
+only (the derivative of friction forces is not a bounded signal). MuJoCo's Euler integrates damping
+implicitly, so with damping the recorded phi is exact only to O(h).
 """
 
 from __future__ import annotations
