@@ -128,6 +128,45 @@ def cmd_check(args) -> int:
     for o in failed:
         print(f"  {o.line}")
     return 1
+def cmd_list(args) -> int:
+    from ftstab_mj.scenario import SCENARIO_DIR, shipped_scenarios
+
+    rows = shipped_scenarios()
+    width = max((len(name) for name, _, _ in rows), default=0)
+    for name, _, description in rows:
+        print(f"{name:<{width}}  {description}")
+    print(f"\n{len(rows)} scenarios in {SCENARIO_DIR}; run one with: ftstab run NAME [--set key.path=value]")
+    return 0
+
+
+def cmd_run(args) -> int:
+    from pathlib import Path
+
+    from ftstab_mj.scenario import find_scenario, load_scenario
+    from ftstab_mj.scenario.run import ProgressSink, run_scenario
+
+    sc = load_scenario(find_scenario(args.scenario), args.set)  # every check happens here, before any file
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise UsageError(f"--out {args.out}: expected a directory for the logs, found a file")
+    from ftstab_mj.logs import McapSink, RerunSink
+    from ftstab_mj.metrics import format_table
+
+    out.mkdir(parents=True, exist_ok=True)
+    paths = (out / f"{sc.name}.mcap", out / f"{sc.name}.rrd")
+    print(f"{sc.name}: {sc.description}")
+    print(f"  plant {sc.plant.model}, {len(sc.loops)} loop(s) ({', '.join(lp.controller.law for lp in sc.loops)}),"
+          f" {sc.sim.duration:g} s, control period {sc.sim.period * 1e3:g} ms,"
+          f" physics step {sc.sim.physics_step * 1e3:g} ms ({sc.sim.integrator}), seed {sc.seed}")
+    sinks = (McapSink(paths[0]), RerunSink(paths[1]), ProgressSink(sc.name, sc.sim.duration))
+    result = run_scenario(sc, sinks)
+    print(format_table(result.metrics))
+    print(f"logs: {paths[0]}  {paths[1]}")
+    if result.status == "completed":
+        return 0
+    print(f"error: run {result.status}: {result.message} (the logs say so and hold the samples up to there)",
+          file=sys.stderr)
+    return 130 if result.status == "interrupted" else 1
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -163,6 +202,23 @@ def build_parser() -> argparse.ArgumentParser:
     ck.add_argument("log", metavar="LOG.mcap")
     ck.add_argument("--expect", required=True, metavar="EXPECT.toml")
     ck.set_defaults(func=cmd_check)
+    r = sub.add_parser(
+        "run", help="run a scenario file, write its logs, print its metrics",
+        description="Run SCENARIO (a .toml file, or the name of a shipped scenario: see `ftstab list`), "
+                    "write DIR/<name>.mcap (Foxglove) and DIR/<name>.rrd (Rerun), print the metrics. "
+                    "Exit 0 when the run completed (converged or not: convergence is a metric), "
+                    "1 when it diverged or failed, 130 when interrupted (Ctrl-C), 2 on bad input.",
+        epilog="example: ftstab run scenarios/cart_r2_robust.toml --out runs --set sim.duration=2")
+    r.add_argument("scenario", help="scenario file (.toml) or shipped scenario name")
+    r.add_argument("--out", default="runs", metavar="DIR", help="directory of the logs (default: runs)")
+    r.add_argument("--set", action="append", default=[], metavar="KEY.PATH=VALUE",
+                   help="override one field, validated like the file (repeatable), e.g. sim.duration=2 "
+                        "or loops.cart.controller.gains[1]=3")
+    r.set_defaults(func=cmd_run)
+
+    ls = sub.add_parser("list", help="the shipped scenarios with their descriptions",
+                        description="List the scenarios shipped in scenarios/ with their one-line descriptions.")
+    ls.set_defaults(func=cmd_list)
     return p
 
 
@@ -173,6 +229,9 @@ def main(argv=None) -> int:
     except FtstabError as exc:  # every bad input of ours: one line, exit 2
         print(f"error: {exc}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:  # outside a run (a run catches its own and finalizes its logs)
+        print("error: interrupted", file=sys.stderr)
+        return 130
 
 
 if __name__ == "__main__":

@@ -198,13 +198,17 @@ def _check(sc: Scenario, rd: _Reader) -> Scenario:
     if not period_is_multiple(sim.period, sim.physics_step):
         raise rd.error("sim.period", f"an integer multiple of sim.physics_step = {sim.physics_step:g} s",
                        f"{sim.period:g} s ({sim.period / sim.physics_step:.6g} steps)")
+    plant = _check_plant(sc, rd)
+    r = plant.r
     loops = []
     for lp in sc.loops:
         p = f"loops.{lp.name}"
         c = lp.controller
-        r = len(lp.z0)  # replaced by the plant's r once the plant is known (see _check_plant)
+        if len(lp.z0) != r:
+            raise rd.error(f"{p}.z0", f"{r} numbers (z_1..z_r, r = {r} for model {sc.plant.model!r})",
+                           f"{len(lp.z0)} numbers")
         if len(c.gains) != r:
-            raise rd.error(f"{p}.controller.gains", f"{r} gains (one per component of z0, r = {r})",
+            raise rd.error(f"{p}.controller.gains", f"{r} gains l_1..l_r (r = {r} for model {sc.plant.model!r})",
                            f"{len(c.gains)} gains")
         try:
             HongController(r, c.k, c.gains, form=c.form)
@@ -220,6 +224,22 @@ def _check(sc: Scenario, rd: _Reader) -> Scenario:
         loops.append(replace(lp, disturbance=replace(lp.disturbance, seed=seeds["disturbance"]),
                              gain=replace(lp.gain, seed=seeds["gain"])))
     return replace(sc, loops=tuple(loops))
+
+
+def _check_plant(sc: Scenario, rd: _Reader):
+    """Build the plant (validating model and parameters) and check there is one loop per joint."""
+    from ftstab_mj.plants import make_plant  # imports MuJoCo: only once the file itself is valid
+
+    try:
+        plant = make_plant(sc.plant.model, sc.plant.params)
+    except ParameterError as exc:  # names "model" or "params.<key>"
+        key = exc.name.removeprefix("params.")
+        raise rd.error(f"plant.{key}", exc.allowed, describe(exc.given)) from None
+    names = [lp.name for lp in sc.loops]
+    if sorted(names) != sorted(plant.loop_names):
+        raise rd.error("loops", f"one table per loop of model {sc.plant.model!r}: "
+                       + ", ".join(f"[loops.{n}]" for n in plant.loop_names), ", ".join(f"[loops.{n}]" for n in names))
+    return plant
 
 
 def _check_law_params(c: ControllerSpec, path: str, rd: _Reader) -> None:

@@ -132,7 +132,7 @@ class LoopSpec:
         "phi(t), injected disturbance in chain units (m/s^r); default none"))
     gain: Signal = field(default=Signal("constant", 1.0), metadata=meta(
         "gamma(t), actuator gain in chain units; default 1 (no uncertainty)"))
-    set_point: float = field(default=0.0, metadata=meta("reference of the joint position (m or rad); z_1 = q - set_point"))
+    ref: float = field(default=0.0, metadata=meta("set point of the joint position (m or rad): z_1 = q - ref"))
 
 
 @dataclass(frozen=True)
