@@ -6,7 +6,7 @@ import argparse
 import json
 import sys
 
-from ftstab_mj.errors import FtstabError
+from ftstab_mj.errors import CallbackError, FtstabError
 
 
 class UsageError(FtstabError, ValueError):
@@ -159,14 +159,19 @@ def cmd_run(args) -> int:
           f" {sc.sim.duration:g} s, control period {sc.sim.period * 1e3:g} ms,"
           f" physics step {sc.sim.physics_step * 1e3:g} ms ({sc.sim.integrator}), seed {sc.seed}")
     sinks = (McapSink(paths[0]), RerunSink(paths[1]), ProgressSink(sc.name, sc.sim.duration))
-    result = run_scenario(sc, sinks)
-    print(format_table(result.metrics))
+    try:
+        run = run_scenario(sc, sinks)
+    except CallbackError as exc:  # the controller raised: not bad input, the logs are closed as "failed"
+        print(f"error: run failed: {exc} (logs closed with status failed: {paths[0]}, {paths[1]})", file=sys.stderr)
+        return 1
+    print(format_table(run.metrics))
     print(f"logs: {paths[0]}  {paths[1]}")
-    if result.status == "completed":
+    status = run.result.status
+    if status == "completed":
         return 0
-    print(f"error: run {result.status}: {result.message} (the logs say so and hold the samples up to there)",
+    print(f"error: run {status}: {run.result.message} (the logs say so and hold the samples up to there)",
           file=sys.stderr)
-    return 130 if result.status == "interrupted" else 1
+    return 130 if status == "interrupted" else 1
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import sys
 import time
+from dataclasses import dataclass
 
 from ftstab_mj.control import AdaptiveLaw, HongController, NominalLaw, RobustLaw
 from ftstab_mj.scenario.loader import scenario_from_dict, scenario_to_dict
@@ -25,21 +26,42 @@ def build_law(c: ControllerSpec, r: int):
     return AdaptiveLaw(hong, c.kappa, c.delta, c.rate, c.eta, c.eps)
 
 
-def run_scenario(sc: Scenario, sinks=()):
-    """Run the scenario; every sink observes it. Returns ftstab_mj.sim.RunResult (status, samples)."""
+@dataclass
+class ScenarioRun:
+    """A finished run: the scenario, the sim's RunResult (status, message, info, samples) and the
+    metrics handed to the sinks (ftstab_mj.metrics.compute_metrics of the samples)."""
+
+    scenario: Scenario
+    result: object  # ftstab_mj.sim.RunResult
+    metrics: dict
+
+
+def run_scenario(sc: Scenario, sinks=()) -> ScenarioRun:
+    """Run the scenario; every sink observes it and is closed with the metrics.
+
+    Raises ftstab_mj.errors.CallbackError when the controller raised (sinks closed as "failed").
+    """
+    from ftstab_mj.metrics import compute_metrics
     from ftstab_mj.plants import make_plant
     from ftstab_mj.sim import LoopSpec, simulate
 
     plant = make_plant(sc.plant.model, sc.plant.params)
     loops = [LoopSpec(name=lp.name, law=build_law(lp.controller, plant.r), phi=lp.disturbance, gamma=lp.gain,
-                      z0=lp.z0, set_point=lp.set_point) for lp in sc.loops]
-    return simulate(plant, loops, duration=sc.sim.duration, period=sc.sim.period,
-                    physics_step=sc.sim.physics_step, integrator=sc.sim.integrator, sinks=tuple(sinks),
-                    divergence_limit=sc.sim.divergence_limit, scenario_dict=scenario_to_dict(sc),
-                    metric_settings=sc.metrics)
+                      z0=lp.z0, ref=lp.ref) for lp in sc.loops]
+    computed = {}
+
+    def metrics(info, samples, status):  # computed once, for the sinks and for the caller
+        computed["metrics"] = compute_metrics(info, samples, status)
+        return computed["metrics"]
+
+    result = simulate(plant, loops, duration=sc.sim.duration, period=sc.sim.period,
+                      physics_step=sc.sim.physics_step, integrator=sc.sim.integrator, sinks=tuple(sinks),
+                      divergence_limit=sc.sim.divergence_limit, scenario_dict=scenario_to_dict(sc),
+                      metric_settings=sc.metrics, metrics=metrics)
+    return ScenarioRun(sc, result, computed["metrics"])
 
 
-def run_scenario_dict(raw: dict, sinks=(), source: str = "<recorded scenario>"):
+def run_scenario_dict(raw: dict, sinks=(), source: str = "<recorded scenario>") -> ScenarioRun:
     """Validate a resolved scenario dict (e.g. a log's /scenario message) and run it."""
     return run_scenario(scenario_from_dict(raw, source), sinks)
 
