@@ -154,18 +154,22 @@ def cmd_run(args) -> int:
 
     out.mkdir(parents=True, exist_ok=True)
     paths = (out / f"{sc.name}.mcap", out / f"{sc.name}.rrd")
-    print(f"{sc.name}: {sc.description}")
-    print(f"  plant {sc.plant.model}, {len(sc.loops)} loop(s) ({', '.join(lp.controller.law for lp in sc.loops)}),"
-          f" {sc.sim.duration:g} s, control period {sc.sim.period * 1e3:g} ms,"
-          f" physics step {sc.sim.physics_step * 1e3:g} ms ({sc.sim.integrator}), seed {sc.seed}")
+    say = (lambda *a, **k: None) if args.json else print  # --json: stdout carries the JSON only
+    say(f"{sc.name}: {sc.description}")
+    say(f"  plant {sc.plant.model}, {len(sc.loops)} loop(s) ({', '.join(lp.controller.law for lp in sc.loops)}),"
+        f" {sc.sim.duration:g} s, control period {sc.sim.period * 1e3:g} ms,"
+        f" physics step {sc.sim.physics_step * 1e3:g} ms ({sc.sim.integrator}), seed {sc.seed}")
     sinks = (McapSink(paths[0]), RerunSink(paths[1]), ProgressSink(sc.name, sc.sim.duration))
     try:
         run = run_scenario(sc, sinks)
     except CallbackError as exc:  # the controller raised: not bad input, the logs are closed as "failed"
         print(f"error: run failed: {exc} (logs closed with status failed: {paths[0]}, {paths[1]})", file=sys.stderr)
         return 1
-    print(format_table(run.metrics))
-    print(f"logs: {paths[0]}  {paths[1]}")
+    if args.json:
+        print(json.dumps(run.metrics, indent=2))
+    else:
+        print(format_table(run.metrics))
+        print(f"logs: {paths[0]}  {paths[1]}")
     status = run.result.status
     if status == "completed":
         return 0
@@ -219,6 +223,8 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--set", action="append", default=[], metavar="KEY.PATH=VALUE",
                    help="override one field, validated like the file (repeatable), e.g. sim.duration=2 "
                         "or loops.cart.controller.gains[1]=3")
+    r.add_argument("--json", action="store_true",
+                   help="print the metrics as JSON (the /metrics message of the log) instead of the table")
     r.set_defaults(func=cmd_run)
 
     ls = sub.add_parser("list", help="the shipped scenarios with their descriptions",
