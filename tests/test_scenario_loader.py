@@ -92,7 +92,7 @@ def test_malformed_input_exit_2_one_line_key_path_no_log(case, tmp_path):
         text = base.read_text()
         if edit is not None:
             assert edit[0] in text, "the edit must apply to the shipped file"
-            text = text.replace(edit[0], edit[1], 1)
+            text = text.replace(edit[0], edit[1])
         path.write_text(text)
     out = tmp_path / "out"
     args = ["run", path, "--out", out]
