@@ -1,0 +1,73 @@
+"""Every shipped scenario runs through the real CLI and does what its one-line description claims.
+
+Each claim below restates the description's numbers and is asserted on the metrics that
+``ftstab run --json`` prints (the same dict the log's /metrics holds). Runs are shortened with
+``--set sim.duration=...`` where the claim only needs the first seconds; the measured values
+(at full length, same numbers when shortened) are in the comments, so the margin of each
+threshold is visible. The runs are deterministic (same seed, bit-identical samples), so a margin
+only has to absorb changes of platform or library version, not noise.
+"""
+
+import json
+
+import pytest
+from conftest import run_cli
+
+from ftstab_mj.scenario import shipped_scenarios
+
+
+def _x_final(m):
+    return m["final_abs_z_max"][0]
+
+
+def _theorem3_held(m):
+    th = m["theorem3"]
+    return th["Delta_held"] and th["phi_hat_bound_held"] and th["eps_reached"]
+
+
+# name: (duration for the test or None for the file's, claim on {loop name: loop metrics})
+CLAIMS = {
+    # exact convergence: settles at 3.865 s, final |x| 1.1e-15, T(z0) = 6.853 s
+    "cart_r2_nominal": (5.0, lambda m: m["cart"]["settle_time"] <= 4.0 and m["cart"]["beat_bound"]
+                        and _x_final(m["cart"]) < 1e-12),
+    # settles at 3.16 s, final |x| 1.24e-4
+    "cart_r2_robust": (6.0, lambda m: m["cart"]["settle_time"] <= 3.5 and m["cart"]["beat_bound"]
+                       and _x_final(m["cart"]) < 2e-4),
+    # settles (V1 < 1e-3) at 2.645 s, final |x| 1.17e-4, Delta = 8.3e-3 vs V1 <= 8.5e-7 at the end
+    "cart_r2_adaptive": (6.0, lambda m: m["cart"]["settle_time"] <= 3.0 and _x_final(m["cart"]) < 2e-4
+                         and _theorem3_held(m["cart"])),
+    # the same trajectory as the nominal law: 3.865 s, final |x| 1.1e-15
+    "cart_r2_worst_case": (5.0, lambda m: m["cart"]["settle_time"] <= 4.0 and m["cart"]["beat_bound"]
+                           and _x_final(m["cart"]) < 1e-12),
+    # never settles at 1e-3; |x| up to 0.43 m over the last 3 s (a 0.2 Hz disturbance: full length)
+    "cart_r2_above_bound_robust": (None, lambda m: m["cart"]["settle_time"] is None
+                                   and _x_final(m["cart"]) > 0.3),
+    # settles (V1 < 1e-3) at 9.72 s, final |x| 9.5e-4
+    "cart_r2_above_bound_adaptive": (None, lambda m: m["cart"]["settle_time"] <= 11.0
+                                     and _x_final(m["cart"]) < 2e-3 and _theorem3_held(m["cart"])),
+    # settles at 4.128 s, final |x| 5.8e-5, T(z0) = 35.1 s
+    "cart_r3_robust": (7.0, lambda m: m["cart"]["settle_time"] <= 4.5 and m["cart"]["beat_bound"]
+                       and _x_final(m["cart"]) < 1e-4),
+    # settles (V1 < 1e-3) at 3.35 s, final |x| 6.4e-5
+    "cart_r3_adaptive": (7.0, lambda m: m["cart"]["settle_time"] <= 4.0 and _x_final(m["cart"]) < 1e-4
+                         and _theorem3_held(m["cart"])),
+}
+
+
+def test_every_shipped_scenario_has_a_checked_claim():
+    assert sorted(CLAIMS) == sorted(name for name, _, _ in shipped_scenarios())
+
+
+@pytest.mark.parametrize("name", sorted(CLAIMS))
+def test_shipped_scenario_does_what_its_description_says(name, tmp_path):
+    duration, claim = CLAIMS[name]
+    args = ["run", name, "--out", tmp_path, "--json"]
+    if duration is not None:
+        args += ["--set", f"sim.duration={duration}"]
+    proc = run_cli(*args)
+    assert proc.returncode == 0, proc.stderr
+    metrics = json.loads(proc.stdout)
+    assert metrics["status"] == "completed"
+    assert (tmp_path / f"{name}.mcap").stat().st_size > 0 and (tmp_path / f"{name}.rrd").stat().st_size > 0
+    loops = metrics["loops"]
+    assert claim(loops), f"{name}: claim not met by {json.dumps(loops, indent=1)}"
