@@ -2,9 +2,9 @@
 
 Each claim below restates the description's numbers and is asserted on the metrics that
 ``ftstab run --json`` prints (the same dict the log's /metrics holds). Runs are shortened with
-``--set sim.duration=...`` where the claim only needs the first seconds; the measured values
-(at full length, same numbers when shortened) are in the comments, so the margin of each
-threshold is visible. The runs are deterministic (same seed, bit-identical samples), so a margin
+``--set sim.duration=...`` where the claim still holds (the final-accuracy window, the last 20 % of
+the run, must start after the settling time); the measured values are in the comments, so the
+margin of each threshold is visible. The runs are deterministic (same seed, bit-identical samples), so a margin
 only has to absorb changes of platform or library version, not noise.
 """
 
@@ -28,7 +28,7 @@ def _theorem3_held(m):
 # name: (duration for the test or None for the file's, claim on {loop name: loop metrics})
 CLAIMS = {
     # exact convergence: settles at 3.865 s, final |x| 1.1e-15, T(z0) = 6.853 s
-    "cart_r2_nominal": (5.0, lambda m: m["cart"]["settle_time"] <= 4.0 and m["cart"]["beat_bound"]
+    "cart_r2_nominal": (None, lambda m: m["cart"]["settle_time"] <= 4.0 and m["cart"]["beat_bound"]
                         and _x_final(m["cart"]) < 1e-12),
     # settles at 3.16 s, final |x| 1.24e-4
     "cart_r2_robust": (6.0, lambda m: m["cart"]["settle_time"] <= 3.5 and m["cart"]["beat_bound"]
@@ -37,7 +37,7 @@ CLAIMS = {
     "cart_r2_adaptive": (6.0, lambda m: m["cart"]["settle_time"] <= 3.0 and _x_final(m["cart"]) < 2e-4
                          and _theorem3_held(m["cart"])),
     # the same trajectory as the nominal law: 3.865 s, final |x| 1.1e-15
-    "cart_r2_worst_case": (5.0, lambda m: m["cart"]["settle_time"] <= 4.0 and m["cart"]["beat_bound"]
+    "cart_r2_worst_case": (None, lambda m: m["cart"]["settle_time"] <= 4.0 and m["cart"]["beat_bound"]
                            and _x_final(m["cart"]) < 1e-12),
     # never settles at 1e-3; |x| up to 0.43 m over the last 3 s (a 0.2 Hz disturbance: full length)
     "cart_r2_above_bound_robust": (None, lambda m: m["cart"]["settle_time"] is None
@@ -46,10 +46,10 @@ CLAIMS = {
     "cart_r2_above_bound_adaptive": (None, lambda m: m["cart"]["settle_time"] <= 11.0
                                      and _x_final(m["cart"]) < 2e-3 and _theorem3_held(m["cart"])),
     # settles at 4.128 s, final |x| 5.8e-5, T(z0) = 35.1 s
-    "cart_r3_robust": (7.0, lambda m: m["cart"]["settle_time"] <= 4.5 and m["cart"]["beat_bound"]
+    "cart_r3_robust": (None, lambda m: m["cart"]["settle_time"] <= 4.5 and m["cart"]["beat_bound"]
                        and _x_final(m["cart"]) < 1e-4),
     # settles (V1 < 1e-3) at 3.35 s, final |x| 6.4e-5
-    "cart_r3_adaptive": (7.0, lambda m: m["cart"]["settle_time"] <= 4.0 and _x_final(m["cart"]) < 1e-4
+    "cart_r3_adaptive": (None, lambda m: m["cart"]["settle_time"] <= 4.0 and _x_final(m["cart"]) < 1e-4
                          and _theorem3_held(m["cart"])),
 }
 
