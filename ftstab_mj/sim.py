@@ -138,11 +138,13 @@ class Simulation:
                                    for b in plant.body_names], dtype=int)
         self._z = np.empty((n, r))
         self._u = np.zeros(n)  # control held over the period, chain units
-        self._scale = plant.dist_scale.astype(float)
+        # generalized force per unit of injected phi: a force, or (integrating plants) its increment per step
+        self._force_factor = plant.dist_scale * (self.physics_step if plant.integrating else 1.0)
         self._pending = False
         self.stop_reason = ""  # set when the run diverged
         self._rec = None
         self._row = -1
+        self._warnings = [self.data.warning[int(k)] for k in _DIVERGENCE_WARNINGS]  # live views of d.warning
         self.callback = self._control  # one bound-method object, so "is it installed" is an identity test
 
     @staticmethod
@@ -223,44 +225,46 @@ class Simulation:
             if not L.phi.state_dependent:
                 self._inj[:, i] = L.phi(ts)
             self._gain[:, i] = L.gamma(ts)
+        # Per step, what the loop writes: the generalized force (r = 2) or its increment over the
+        # step (integrating plants: F_d' = scale phi held over the step), and ctrl (filled at samples).
+        self._force = self._inj * self._force_factor
+        self._ctrl = np.zeros((n_samples * N, n))
         self._start_batch(n_samples)
-        inj, gain, u, scale = self._inj, self._gain, self._u, self._scale
+        force, ctrl_steps = self._force, self._ctrl
         ctrl, qfrc = d.ctrl, d.qfrc_applied
         integrating, refresh = self.plant.integrating, self.plant.refresh_before_sample
-        rate_scale = self.physics_step * scale
         warn0 = self._warning_count()
         step = mujoco.mj_step
-        for s in range(n_samples * N):
-            if s % N == 0:
-                if self._warning_count() != warn0:
-                    self.stop_reason = f"diverged before t = {d.time:.6g} s: MuJoCo reported a bad state ({self._warning_text()})"
-                    break
-                if refresh:
-                    mujoco.mj_forward(m, d)
-                self._s = s
-                self._pending = True
-                step(m, d)
-                if self.stop_reason:
-                    break
-            else:
-                ctrl[:n] = gain[s] * u
-                if not integrating:
-                    qfrc[:n] = scale * inj[s]
-                step(m, d)
-            if integrating:  # F_d' = m phi, held over the step
-                qfrc[:n] += rate_scale * inj[s]
-        else:
+        for k in range(n_samples):
+            base = k * N
             if self._warning_count() != warn0:
-                self.stop_reason = f"diverged before t = {d.time:.6g} s: MuJoCo reported a bad state ({self._warning_text()})"
+                break
+            if refresh:
+                mujoco.mj_forward(m, d)
+            self._s = base
+            self._pending = True
+            step(m, d)  # the callback evaluates the law, writes ctrl (and the r = 2 force) and records
+            if self.stop_reason:
+                break
+            if integrating:
+                qfrc[:n] += force[base]
+            for s in range(base + 1, base + N):
+                ctrl[:n] = ctrl_steps[s]
+                if integrating:
+                    step(m, d)
+                    qfrc[:n] += force[s]
+                else:
+                    qfrc[:n] = force[s]
+                    step(m, d)
+        if not self.stop_reason and self._warning_count() != warn0:
+            self.stop_reason = f"diverged before t = {d.time:.6g} s: MuJoCo reported a bad state ({self._warning_text()})"
         return self.take_batch()
 
     def _warning_count(self) -> int:
-        w = self.data.warning
-        return sum(w[int(k)].number for k in _DIVERGENCE_WARNINGS)
+        return sum(w.number for w in self._warnings)
 
     def _warning_text(self) -> str:
-        w = self.data.warning
-        return ", ".join(f"{k.name} x{w[int(k)].number}" for k in _DIVERGENCE_WARNINGS if w[int(k)].number)
+        return ", ".join(f"{k.name} x{w.number}" for k, w in zip(_DIVERGENCE_WARNINGS, self._warnings) if w.number)
 
     def _start_batch(self, n_samples: int) -> None:
         n_body = len(self._body_ids)
@@ -310,7 +314,9 @@ class Simulation:
             phi_hat = ud[i]
             out = law.output(z[i], phi_hat)
             if L.phi.state_dependent:  # worst case: held over the period with this sample's dV1/dz_r
-                self._inj[s:s + self.N, i] = L.phi(t, out.dV1_dzr)
+                value = float(L.phi(t, out.dV1_dzr))
+                self._inj[s:s + self.N, i] = value
+                self._force[s:s + self.N, i] = value * self._force_factor[i]
             u = float(out.u)
             if not np.isfinite(u):
                 self.stop_reason = f"diverged at t = {t:.6g} s: the control of loop {L.name!r} is {u}"
@@ -326,11 +332,11 @@ class Simulation:
             rec["phi_hat"][row] = phi_hat
             rec["gamma_hat"][row] = out.gamma_hat
             ud[i] = advance_phi_hat(law, out.V1, phi_hat, self.period)
-        gain, inj = self._gain[s], self._inj[s]
-        d.ctrl[:n] = gain * self._u
+        self._ctrl[s:s + self.N] = self._gain[s:s + self.N] * self._u  # held u times each step's gain
+        d.ctrl[:n] = self._ctrl[s]
         if not self.plant.integrating:
-            d.qfrc_applied[:n] = self._scale * inj
-        phi, gamma = self.plant.true_chain(m, d, self._u, gain, inj)
+            d.qfrc_applied[:n] = self._force[s]
+        phi, gamma = self.plant.true_chain(m, d, self._u, self._gain[s], self._inj[s])
         for i, rec in enumerate(self._rec):
             rec["phi"][row] = phi[i]
             rec["gamma"][row] = gamma[i]

@@ -115,6 +115,8 @@ def test_robust_law_stabilizes_the_cart_within_the_theorem_1_time(r, phi):
     assert info.true_phibar <= law.phibar and info.true_gamma_m >= law.gamma_m
     s = res.loops["cart"]
     assert np.abs(s["phi"]).max() <= 0.4 and s["gamma"].min() >= 0.8 and s["gamma"].max() <= 1.2
+    # the recorded true phi is the injected signal (the worst case with this sample's dV1/dz_r)
+    np.testing.assert_array_equal(s["phi"], phi(s["t"], s["dV1_dzr"]) if phi.state_dependent else phi(s["t"]))
     cert = certify(HONG[r])
     T = s["V1"][0] ** (1 - cert.alpha) / (cert.c * (1 - cert.alpha))
     assert _settle(s["t"], s["V1"], 1e-3) <= T
