@@ -19,13 +19,13 @@ every batch written before its last flush readable (see logs/reader.py).
 
 from __future__ import annotations
 
-import json
-import math
 import platform
 
 import numpy as np
+import orjson
 
 from ftstab_mj.errors import LogError
+from ftstab_mj.logs.mcap_file import McapFile
 from ftstab_mj.logs.scene import model_shapes
 from ftstab_mj.records import LOOP_FIELDS, RunInfo, SampleBatch
 
@@ -77,30 +77,28 @@ def versions() -> dict[str, str]:
 
 
 def _json(obj) -> bytes:
-    return json.dumps(obj, separators=(",", ":"), allow_nan=False).encode()
-
-
-def _nulls(x):
-    return x if math.isfinite(x) else None
+    """Strict JSON bytes (orjson writes NaN and infinities as null)."""
+    return orjson.dumps(obj, option=orjson.OPT_SERIALIZE_NUMPY)
 
 
 def loop_messages(arrays: dict) -> list[bytes]:
     """JSON bytes of each sample of one loop: arrays {field: (n,) or z (n, r)} -> n messages.
 
-    A %-template over Python floats (repr is the shortest exact round trip) costs a third of a
-    json.dumps per sample; rows with a non-finite value take the slow path that writes null.
+    The whole batch goes through one orjson call as a 2-D array (shortest exact float repr, null
+    for non-finite), then each row's numbers are put into the message template: ~1 us a sample,
+    against ~12 us for a json.dumps of a dict.
     """
     z = np.asarray(arrays["z"], dtype=float)
     n, r = z.shape
+    if n == 0:
+        return []
     others = [f for f in LOOP_FIELDS if f not in ("t", "z")]
     table = np.column_stack([arrays["t"], z] + [arrays[f] for f in others]).astype(float)
-    tmpl = ('{"t":%r,"z":[' + ",".join(["%r"] * r) + "]," + ",".join(f'"{f}":%r' for f in others) + "}")
-    rows = table.tolist()
-    out = [(tmpl % tuple(row)).encode() for row in rows]
-    for i in np.flatnonzero(~np.isfinite(table).all(axis=1)):
-        row = [_nulls(x) for x in rows[i]]
-        out[i] = _json({"t": row[0], "z": row[1:1 + r], **dict(zip(others, row[1 + r:]))})
-    return out
+    tmpl = (b'{"t":%s,"z":[' + b",".join([b"%s"] * r) + b"],"
+            + b",".join(b'"%s":%%s' % f.encode() for f in others) + b"}")
+    numbers = orjson.dumps(table, option=orjson.OPT_SERIALIZE_NUMPY)[2:-2].replace(b"],[", b",").split(b",")
+    # one %-formatting over the whole batch (messages separated by newlines, which compact JSON lacks)
+    return ((tmpl + b"\n") * n % tuple(numbers)).split(b"\n")[:n]
 
 
 def _stamp(t_ns: int) -> dict:
@@ -143,6 +141,7 @@ class McapSink:
 
     pose_rate: Hz of simulated time at which body poses go to ``/tf`` (a display rate: the loop
     samples are all logged); compression: "zstd" | "lz4" | "none", applied per chunk (= per batch).
+    Written with :class:`~ftstab_mj.logs.mcap_file.McapFile` (bulk message records).
     """
 
     def __init__(self, path, pose_rate: float = 60.0, compression: str = "zstd"):
@@ -153,15 +152,11 @@ class McapSink:
         self._file = None
 
     def open(self, info: RunInfo) -> None:
-        from mcap.writer import CompressionType, Writer
-
         try:
             self._file = open(self.path, "wb")
         except OSError as exc:
             raise LogError(f"{self.path}: cannot write the MCAP log ({exc.strerror})") from None
-        comp = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}[self.compression]
-        # chunk_size is a ceiling: chunks are cut at every flush (one per batch).
-        w = self._writer = Writer(self._file, chunk_size=64 << 20, compression=comp)
+        w = self._writer = McapFile(self._file, compression={"none": ""}.get(self.compression, self.compression))
         w.start(profile="", library=f"ftstab_mj {versions()['ftstab_mj']}")
         w.add_metadata("versions", versions())
         self._info = info
@@ -173,43 +168,35 @@ class McapSink:
         self._ch_metrics = w.register_channel("/metrics", "json", obj)
         loop_schema = w.register_schema(LOOP_SCHEMA_NAME, "jsonschema", _json(LOOP_SCHEMA))
         self._ch_loop = {lp.name: w.register_channel(f"/loop/{lp.name}", "json", loop_schema) for lp in info.loops}
-        self._seq = dict.fromkeys(self._ch_loop, 0)
         self._ch_tf = None
         if info.model_xml is not None and info.body_names:
             tf = w.register_schema("foxglove.FrameTransforms", "jsonschema", _json(FRAME_TRANSFORMS_SCHEMA))
             self._ch_tf = w.register_channel("/tf", "json", tf)
             sc = w.register_schema("foxglove.SceneUpdate", "jsonschema", _json(SCENE_UPDATE_SCHEMA))
-            ch_scene = w.register_channel("/scene", "json", sc)
-            w.add_message(ch_scene, 0, _json(scene_update(info)), 0)
-        w.add_message(self._ch_scenario, 0, _json(info.scenario), 0)
+            w.add_message(w.register_channel("/scene", "json", sc), 0, _json(scene_update(info)))
+        w.add_message(self._ch_scenario, 0, _json(info.scenario))
         run = info.to_dict()
         del run["scenario"]
-        w.add_message(self._ch_run, 0, _json(run), 0)
+        w.add_message(self._ch_run, 0, _json(run))
         w.flush()
 
     def write(self, batch: SampleBatch) -> None:
-        w = self._writer
-        n = len(batch)
         for name, arrays in batch.loops.items():
-            ch = self._ch_loop[name]
-            times = np.rint(np.asarray(arrays["t"], dtype=float) * 1e9).astype(np.int64).tolist()
-            seq = self._seq[name]
-            add = w.add_message
-            for i, (tn, data) in enumerate(zip(times, loop_messages(arrays))):
-                add(ch, tn, data, tn, seq + i)
-            self._seq[name] = seq + n
+            times = np.rint(np.asarray(arrays["t"], dtype=float) * 1e9).astype(np.int64)
+            self._writer.add_messages(self._ch_loop[name], times, loop_messages(arrays))
         if self._ch_tf is not None:
             self._write_poses(batch)
-        self._n += n
-        w.flush()
+        self._n += len(batch)
+        self._writer.flush()
 
     def _write_poses(self, batch):
         t = np.asarray(next(iter(batch.loops.values()))["t"], dtype=float)
         finite = np.isfinite(batch.body_pos).all(axis=(1, 2)) & np.isfinite(batch.body_quat).all(axis=(1, 2))
         idx = np.flatnonzero(((self._n + np.arange(len(t))) % self._pose_every == 0) & finite)
         names = self._info.body_names
-        for i in idx.tolist():
-            tn = int(round(t[i] * 1e9))
+        times = np.rint(t[idx] * 1e9).astype(np.int64)
+        datas = []
+        for i, tn in zip(idx.tolist(), times.tolist()):
             stamp = _stamp(tn)
             tfs = []
             for b, name in enumerate(names):
@@ -218,14 +205,14 @@ class McapSink:
                 tfs.append({"timestamp": stamp, "parent_frame_id": WORLD_FRAME, "child_frame_id": name,
                             "translation": {"x": p[0], "y": p[1], "z": p[2]},
                             "rotation": {"x": q[1], "y": q[2], "z": q[3], "w": q[0]}})
-            self._writer.add_message(self._ch_tf, tn, _json({"transforms": tfs}), tn)
+            datas.append(_json({"transforms": tfs}))
+        self._writer.add_messages(self._ch_tf, times, datas)
 
     def close(self, status: str, metrics: dict, message: str = "") -> None:
         if self._writer is None:
             return
         t_end = int(round(self._n * self._info.period * 1e9))
-        self._writer.add_message(self._ch_metrics, t_end,
-                                 _json({"status": status, "message": message, "metrics": metrics}), t_end)
+        self._writer.add_message(self._ch_metrics, t_end, _json({"status": status, "message": message, "metrics": metrics}))
         self._writer.finish()
         self._file.close()
         self._writer = None
