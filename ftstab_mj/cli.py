@@ -178,6 +178,58 @@ def cmd_run(args) -> int:
     return 130 if status == "interrupted" else 1
 
 
+def _workers(text: str) -> int:
+    try:
+        n = int(text)
+    except ValueError:
+        n = 0
+    if n < 1:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {text!r}")
+    return n
+
+
+def cmd_sweep(args) -> int:
+    from collections import Counter
+    from pathlib import Path
+
+    from ftstab_mj.sweep import expand, load_sweep, run_sweep
+    from ftstab_mj.sweep.runner import prepare
+    from ftstab_mj.sweep.table import read_table
+
+    sweep = load_sweep(args.sweep)
+    rows = expand(sweep)
+    out = Path(args.out or Path("runs") / sweep.name)
+    task, identity = prepare(sweep, args.set, out / "logs" if args.logs else None)  # all input checks, before any run
+    engine = args.engine or ("dask" if args.workers > 1 or args.scheduler else "serial")
+    if engine == "serial" and (args.workers > 1 or args.scheduler):
+        raise UsageError("--engine serial: expected no --workers/--scheduler (one process runs everything)")
+    if args.scheduler and engine != "dask":
+        raise UsageError(f"--scheduler: expected --engine dask, found --engine {engine}")
+    print(f"{sweep.name}: {sweep.description}")
+    print(f"  base {sweep.scenario}, {len(rows)} runs -> {out}")
+    outcome = run_sweep(sweep.name, rows, task, out, identity, engine=engine, workers=args.workers,
+                        scheduler=args.scheduler, resume=args.resume, fmt=args.format)
+    counts = Counter(read_table(outcome.table)["status"]) if outcome.done else Counter()
+    print(f"{outcome.done}/{outcome.total} runs in the table ({', '.join(f'{n} {s}' for s, n in sorted(counts.items()))}); "
+          f"{outcome.ran} ran now in {outcome.elapsed_s:.1f} s")
+    print(f"table: {outcome.table}")
+    if args.report and outcome.done:
+        from ftstab_mj.sweep.report import make_report
+
+        paths, fits = make_report(sweep, outcome.table, out / "report")
+        for path in paths:
+            print(f"figure: {path}")
+        for fit in fits:
+            print(f"log-log slope in {fit.plot}, {fit.series}: {fit.slope:.3f} ({fit.points} points)")
+    if outcome.interrupted:
+        return 130
+    if outcome.lost:
+        print(f"error: {len(outcome.lost)} run(s) lost by dead workers (rows {', '.join(map(str, outcome.lost))});"
+              f" --resume runs them", file=sys.stderr)
+        return 1
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = _Parser(prog="ftstab", description=(
         "Testbed for the finite-time robust and adaptive controllers of Harmouche, Laghrouche and "
@@ -230,6 +282,33 @@ def build_parser() -> argparse.ArgumentParser:
     ls = sub.add_parser("list", help="the shipped scenarios with their descriptions",
                         description="List the scenarios shipped in scenarios/ with their one-line descriptions.")
     ls.set_defaults(func=cmd_list)
+
+    w = sub.add_parser(
+        "sweep", help="run a sweep file: many runs of a base scenario, serially, on local processes or on Dask",
+        description="Run every parameter set of SWEEP (grids and seeded Monte Carlo draws over a base "
+                    "scenario), write one table of parameters + metrics per run to DIR/<name>.parquet "
+                    "(or .csv). A failed run is a row with its error; an interrupted sweep goes on with "
+                    "--resume. The table does not depend on the engine or the number of workers. "
+                    "Exit 0 when every run is in the table, 1 when runs were lost by dead workers, "
+                    "130 when interrupted, 2 on bad input.",
+        epilog="example: ftstab sweep scenarios/sweeps/robust_accuracy_vs_period.toml --workers 2 --report")
+    w.add_argument("sweep", help="sweep file (.toml)")
+    w.add_argument("--workers", type=_workers, default=1, metavar="N",
+                   help="parallel runs (default 1: serial); N > 1 starts a local Dask cluster of N processes")
+    w.add_argument("--engine", choices=("serial", "processes", "dask"),
+                   help="serial, processes (a local process pool) or dask (default: dask when N > 1 or --scheduler)")
+    w.add_argument("--scheduler", metavar="ADDRESS",
+                   help="a running Dask scheduler (tcp://host:8786) instead of a local cluster; "
+                        "its workers need ftstab_mj installed")
+    w.add_argument("--out", metavar="DIR", help="output directory (default: runs/<sweep name>)")
+    w.add_argument("--resume", action="store_true", help="continue the sweep in DIR: run only the rows not in its table")
+    w.add_argument("--set", action="append", default=[], metavar="KEY.PATH=VALUE",
+                   help="override a field of the base scenario for every run (repeatable), e.g. sim.duration=1")
+    w.add_argument("--format", choices=("parquet", "csv"), default="parquet", help="table format (default parquet)")
+    w.add_argument("--logs", action="store_true", help="also write each run's logs, DIR/logs/rowNNNNN.mcap and .rrd")
+    w.add_argument("--report", action="store_true",
+                   help="draw the sweep file's [[report.plot]] figures into DIR/report/ (PNG) and print the fits")
+    w.set_defaults(func=cmd_sweep)
     return p
 
 

@@ -21,7 +21,7 @@ DEGREE = {2: -0.2, 3: -0.1}
 class ChainTask:
     duration: float = 1.0  # s of simulated time
 
-    def __call__(self, params) -> dict:
+    def __call__(self, index, params) -> dict:
         p = dict(params)
         r = int(p.get("r", 2))
         law = RobustLaw(HongController(r, p.get("k", DEGREE[r]), GAINS[r]), phibar=1.0, gamma_m=1.0)

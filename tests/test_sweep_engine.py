@@ -136,7 +136,7 @@ def test_same_table_serially_on_two_processes_and_on_a_two_worker_dask_cluster(t
     ok = [i for i, s in enumerate(t["status"]) if s == "completed"]
     assert [t["k"][i] for i in ok] == [-0.1] * 6
     # a value computed independently: row 0 alone, in this process
-    direct = ChainTask()(rows[0].params)["metrics"]["final_abs_z1"]
+    direct = ChainTask()(0, rows[0].params)["metrics"]["final_abs_z1"]
     assert t["metrics.final_abs_z1"][0] == direct
 
 
@@ -161,11 +161,11 @@ class InterruptAt:
     def __init__(self, task, at):
         self.task, self.at, self.calls = task, at, []
 
-    def __call__(self, params):
+    def __call__(self, index, params):
         if self.at in params:
             raise KeyboardInterrupt
         self.calls.append(params)
-        return self.task(params)
+        return self.task(index, params)
 
 
 def test_resume_after_an_interruption_runs_only_the_missing_rows(tmp_path):

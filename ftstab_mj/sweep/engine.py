@@ -1,7 +1,7 @@
 """Where the runs of a sweep execute: in this process, on local processes, or on a Dask cluster.
 
-Every engine calls the same picklable ``task(params) -> {"status", "error", "metrics"}`` (params:
-((key path, value), ...)) through
+Every engine calls the same picklable ``task(index, params) -> {"status", "error", "metrics"}``
+(index: the row; params: ((key path, value), ...)) through
 :func:`guarded` and yields ``(index, result)`` as runs finish, in any order (the caller orders the
 table). A run's result depends on its parameters only, so the table does not depend on the engine.
 
@@ -27,28 +27,28 @@ from ftstab_mj.records import FAILED
 ENGINES = ("serial", "processes", "dask")
 
 
-def guarded(task: Callable[[tuple], dict], params: tuple) -> dict:
-    """``task(params)`` with any exception turned into a failed result; adds ``elapsed_s`` (wall s).
+def guarded(task: Callable[[int, tuple], dict], index: int, params: tuple) -> dict:
+    """``task(index, params)`` with any exception turned into a failed result; adds ``elapsed_s`` (wall s).
 
     A failed result is ``{"status": "failed", "error": "<ExceptionType>: <message>", "metrics": {}}``.
     KeyboardInterrupt is not caught: an interrupted run is not a result.
     """
     t0 = time.perf_counter()
     try:
-        out = dict(task(params))
+        out = dict(task(index, params))
     except Exception as exc:  # noqa: BLE001 - any failure of one run is recorded, the sweep goes on
         out = {"status": FAILED, "error": f"{type(exc).__name__}: {exc}", "metrics": {}}
     out["elapsed_s"] = time.perf_counter() - t0
     return out
 
 
-def execute(items: Iterable[tuple[int, tuple]], task: Callable[[tuple], dict], engine: str = "serial",
+def execute(items: Iterable[tuple[int, tuple]], task: Callable[[int, tuple], dict], engine: str = "serial",
             workers: int = 1, scheduler: str | None = None) -> Iterator[tuple[int, dict | None]]:
     """Run ``task`` on every (index, params); yield (index, result or None if lost) as runs finish."""
     items = list(items)
     if engine == "serial":
         for i, params in items:
-            yield i, guarded(task, params)
+            yield i, guarded(task, i, params)
     elif engine == "processes":
         yield from _processes(items, task, workers)
     elif engine == "dask":
@@ -64,7 +64,7 @@ def _processes(items, task, workers) -> Iterator[tuple[int, dict | None]]:
     # spawn, not fork: a forked child would inherit this process's MuJoCo and thread state
     pool = ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"))
     try:
-        futures = {pool.submit(guarded, task, params): i for i, params in items}
+        futures = {pool.submit(guarded, task, i, params): i for i, params in items}
         for fut in as_completed(futures):
             exc = fut.exception()
             yield futures[fut], (None if exc is not None else fut.result())
@@ -92,7 +92,7 @@ def _dask(items, task, workers, scheduler) -> Iterator[tuple[int, dict | None]]:
         raise EngineError(f"--scheduler: expected a reachable Dask scheduler, could not reach {where} ({exc})") from None
     tag = uuid.uuid4().hex[:8]  # keys unique to this sweep on a shared scheduler
     try:
-        futures = {client.submit(guarded, task, params, key=f"ftstab-{tag}-{i}", pure=False): i for i, params in items}
+        futures = {client.submit(guarded, task, i, params, key=f"ftstab-{tag}-{i}", pure=False): i for i, params in items}
         for fut in as_completed(futures):
             lost = fut.status != "finished"  # "error": the task killed its workers (KilledWorker)
             yield futures[fut], (None if lost else fut.result())

@@ -57,7 +57,7 @@ def run_sweep(name: str, rows: list[Row], task, out_dir, identity: dict, *, engi
               progress=sys.stderr) -> SweepOutcome:
     """Run the rows not yet journaled in ``out_dir``; write the table. See the module docstring.
 
-    task: picklable, task(params) -> {"status", "error", "metrics"} with params ((key path, value), ...).
+    task: picklable, task(index, params) -> {"status", "error", "metrics"}; params: ((key path, value), ...).
     identity: JSON-able description of what every run starts from (part of the fingerprint).
     progress: stream for one line per finished run (None: silent).
     """

@@ -121,7 +121,7 @@ class Sweep:
     plots: tuple[PlotSpec, ...] = ()
 
 
-def _key(path: str, key) -> str:
+def key_label(path: str, key) -> str:
     """Key path inside the sweep file; keys that hold dots are quoted as in TOML."""
     if isinstance(key, int):
         return f"{path}[{key}]"
@@ -141,10 +141,10 @@ class _Reader:
             raise self.error(path, "a table", describe(value))
         for k in value:
             if k not in keys:
-                raise self.error(_key(path, k), "one of the keys " + ", ".join(keys), f"unknown key {k!r}")
+                raise self.error(key_label(path, k), "one of the keys " + ", ".join(keys), f"unknown key {k!r}")
         for k in required:
             if k not in value:
-                raise self.error(_key(path, k), "a value", "nothing: the key is required")
+                raise self.error(key_label(path, k), "a value", "nothing: the key is required")
         return value
 
     def number(self, value, path) -> float:
@@ -173,7 +173,7 @@ class _Reader:
     def numbers(self, value, path, n: int) -> tuple:
         if not isinstance(value, list) or len(value) != n:
             raise self.error(path, f"an array of {n} numbers", describe(value))
-        return tuple(self.number(v, _key(path, i)) for i, v in enumerate(value))
+        return tuple(self.number(v, key_label(path, i)) for i, v in enumerate(value))
 
     def key_path(self, key: str, path: str) -> str:
         try:
@@ -198,16 +198,16 @@ class _Reader:
         kind = kinds[0]
         if kind == "range":
             self.table(value, path, ("range",))
-            start, stop, step = self.numbers(value["range"], _key(path, "range"), 3)
+            start, stop, step = self.numbers(value["range"], key_label(path, "range"), 3)
             if step == 0 or (stop - start) / step < 0:
-                raise self.error(_key(path, "range"), "a step that goes from start towards stop",
+                raise self.error(key_label(path, "range"), "a step that goes from start towards stop",
                                  f"start {start:g}, stop {stop:g}, step {step:g}")
             return GridParam(key, kind, (start, stop, step))
         self.table(value, path, (kind, "num"), required=(kind, "num"))
-        start, stop = self.numbers(value[kind], _key(path, kind), 2)
-        num = self.integer(value["num"], _key(path, "num"), 1)
+        start, stop = self.numbers(value[kind], key_label(path, kind), 2)
+        num = self.integer(value["num"], key_label(path, "num"), 1)
         if kind == "logspace" and not (start > 0 and stop > 0):
-            raise self.error(_key(path, kind), "two end values > 0 (geometric spacing)", describe(value[kind]))
+            raise self.error(key_label(path, kind), "two end values > 0 (geometric spacing)", describe(value[kind]))
         return GridParam(key, kind, (start, stop), num)
 
     def grid(self, value, path) -> tuple[Axis, ...]:
@@ -215,11 +215,11 @@ class _Reader:
             raise self.error(path, "a table of key path = values", describe(value))
         axes = []
         for key, body in value.items():
-            p = _key(path, key)
+            p = key_label(path, key)
             if isinstance(body, dict) and body and not set(body) & set(GRID_KINDS + ("num",)):  # a group
                 if not key.replace("_", "").replace("-", "").isalnum():
                     raise self.error(p, "a group name of letters, digits, '_' and '-'", repr(key))
-                params = tuple(self.grid_param(k, v, _key(p, k)) for k, v in body.items())
+                params = tuple(self.grid_param(k, v, key_label(p, k)) for k, v in body.items())
                 axes.append(Axis(key, params))
             else:
                 axes.append(Axis(key, (self.grid_param(key, body, p),)))
@@ -232,7 +232,7 @@ class _Reader:
             raise self.error(path, "a table with one of " + ", ".join(f"{d} = [...]" for d in DISTRIBUTIONS),
                              describe(value))
         (dist, args), = value.items()
-        p = _key(path, dist)
+        p = key_label(path, dist)
         if dist == "choice":
             if not isinstance(args, list) or not args:
                 raise self.error(p, "a non-empty array of values", describe(args))
@@ -240,17 +240,17 @@ class _Reader:
         if dist == "integers":
             if not isinstance(args, list) or len(args) != 2:
                 raise self.error(p, "an array of 2 integers [low, high] (both included)", describe(args))
-            lo, hi = (self.integer(v, _key(p, i), -(2 ** 63)) for i, v in enumerate(args))
+            lo, hi = (self.integer(v, key_label(p, i), -(2 ** 63)) for i, v in enumerate(args))
             if hi < lo:
                 raise self.error(p, "low <= high", describe(args))
             return Draw(key, dist, (lo, hi))
         a, b = self.numbers(args, p, 2)
         if dist == "normal" and b < 0:
-            raise self.error(_key(p, 1), "a standard deviation >= 0", describe(b))
+            raise self.error(key_label(p, 1), "a standard deviation >= 0", describe(b))
         if dist in ("uniform", "loguniform") and b < a:
             raise self.error(p, "low <= high", describe(args))
         if dist == "loguniform" and a <= 0:
-            raise self.error(_key(p, 0), "a number > 0 (log-uniform)", describe(a))
+            raise self.error(key_label(p, 0), "a number > 0 (log-uniform)", describe(a))
         return Draw(key, dist, (a, b))
 
     # -- [report] -------------------------------------------------------------------------------
@@ -258,17 +258,17 @@ class _Reader:
         self.table(value, path, ("plot",))
         plots = value.get("plot", [])
         if not isinstance(plots, list):
-            raise self.error(_key(path, "plot"), "an array of tables [[report.plot]]", describe(plots))
+            raise self.error(key_label(path, "plot"), "an array of tables [[report.plot]]", describe(plots))
         out = []
         names = tuple(PlotSpec.__dataclass_fields__)
         for i, body in enumerate(plots):
-            p = _key(_key(path, "plot"), i)
+            p = key_label(key_label(path, "plot"), i)
             self.table(body, p, names, required=("x", "y"))
-            kw = {k: (self.boolean(v, _key(p, k)) if k in ("logx", "logy", "fit") else self.string(v, _key(p, k)))
+            kw = {k: (self.boolean(v, key_label(p, k)) if k in ("logx", "logy", "fit") else self.string(v, key_label(p, k)))
                   for k, v in body.items()}
             spec = PlotSpec(**kw)
             if spec.fit and not (spec.logx and spec.logy):
-                raise self.error(_key(p, "fit"), "logx = true and logy = true (the fit is a log-log slope)",
+                raise self.error(key_label(p, "fit"), "logx = true and logy = true (the fit is a log-log slope)",
                                  f"logx = {str(spec.logx).lower()}, logy = {str(spec.logy).lower()}")
             out.append(spec)
         return tuple(out)
@@ -289,18 +289,18 @@ class _Reader:
         fixed = raw.get("set", {})
         if not isinstance(fixed, dict):
             raise self.error("set", "a table of key path = value", describe(fixed))
-        fixed = tuple((self.key_path(k, _key("set", k)), v) for k, v in fixed.items())
+        fixed = tuple((self.key_path(k, key_label("set", k)), v) for k, v in fixed.items())
         axes = self.grid(raw.get("grid", {}), "grid")
         draws_raw = raw.get("draw", {})
         if not isinstance(draws_raw, dict):
             raise self.error("draw", "a table of key path = {distribution = [...]}", describe(draws_raw))
-        draws = tuple(self.draw(k, v, _key("draw", k)) for k, v in draws_raw.items())
+        draws = tuple(self.draw(k, v, key_label("draw", k)) for k, v in draws_raw.items())
         if samples > 1 and not draws:
             raise self.error("samples", "1 when there is no [draw] table (identical runs otherwise)", str(samples))
         seen: dict[str, str] = {}
-        for where, path in ([(_key(_key("grid", a.name), p.path) if len(a.params) > 1 else _key("grid", p.path),
+        for where, path in ([(key_label(key_label("grid", a.name), p.path) if len(a.params) > 1 else key_label("grid", p.path),
                               p.path) for a in axes for p in a.params]
-                            + [(_key("draw", d.path), d.path) for d in draws]):
+                            + [(key_label("draw", d.path), d.path) for d in draws]):
             if path in seen:
                 raise self.error(where, "each key path varied once", f"{path!r}, also varied at {seen[path]}")
             seen[path] = where

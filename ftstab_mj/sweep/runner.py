@@ -1,0 +1,115 @@
+"""A sweep row as a scenario run: the base scenario + the row's overrides, run like ``ftstab run``.
+
+The row's (key path, value) pairs go through the scenario loader's own ``--set`` machinery
+(:func:`ftstab_mj.scenario.apply_override` on the raw TOML data, then the full validation), so a
+varied parameter gets exactly the checks of the file, and a bad combination fails that row with the
+loader's one-line message. Metrics are those of ``ftstab run`` (ftstab_mj.metrics.compute_metrics).
+"""
+
+from __future__ import annotations
+
+import copy
+import json
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+
+from ftstab_mj.errors import ScenarioError, SweepError
+from ftstab_mj.records import COMPLETED, INTERRUPTED
+from ftstab_mj.scenario import apply_override, scenario_from_dict, scenario_to_dict
+from ftstab_mj.scenario.loader import parse_override
+from ftstab_mj.sweep.spec import Sweep, key_label
+
+
+def toml_literal(value) -> str:
+    """``value`` (bool, int, float, str, list, dict) written as a TOML value, for a ``--set`` text."""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, (int, float)):
+        return repr(value)  # repr of a float is a valid TOML float (1e-05, inf, nan included)
+    if isinstance(value, str):
+        return json.dumps(value)  # a TOML basic string
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(toml_literal(v) for v in value) + "]"
+    if isinstance(value, dict):
+        return "{" + ", ".join(f"{json.dumps(k)} = {toml_literal(v)}" for k, v in value.items()) + "}"
+    raise TypeError(f"no TOML form for {value!r}")  # a value of the sweep file is always one of the above
+
+
+def override_text(path: str, value) -> str:
+    return f"{path}={toml_literal(value)}"
+
+
+@dataclass(frozen=True)
+class ScenarioTask:
+    """Runs one row: ``base`` (raw TOML data of the base scenario, fixed overrides applied) + the row's
+    overrides. Picklable. ``logs``: directory for each run's ``<row>.mcap`` and ``<row>.rrd``, or None."""
+
+    base: dict
+    source: str  # the sweep file, prefix of every error
+    logs: str | None = None
+
+    def __call__(self, index: int, params) -> dict:
+        from ftstab_mj.scenario.run import run_scenario
+
+        raw = copy.deepcopy(self.base)
+        where = {}
+        src = f"{self.source} (row {index})"
+        for path, value in params:
+            text = override_text(path, value)
+            where[apply_override(raw, text, src)] = text
+        sc = scenario_from_dict(raw, src, where)
+        sinks = ()
+        if self.logs:
+            from ftstab_mj.logs import McapSink, RerunSink
+
+            Path(self.logs).mkdir(parents=True, exist_ok=True)
+            stem = Path(self.logs) / f"row{index:05d}"
+            sinks = (McapSink(stem.with_suffix(".mcap")), RerunSink(stem.with_suffix(".rrd")))
+        run = run_scenario(sc, sinks)
+        status = run.result.status
+        if status == INTERRUPTED:  # the run loop caught Ctrl-C: not a result of this row, stop the sweep
+            raise KeyboardInterrupt
+        return {"status": status, "error": "" if status == COMPLETED else run.result.message, "metrics": run.metrics}
+
+
+def _has_path(data, parts) -> bool:
+    """Whether the key path (parts of parse_override) exists in ``data``, or names a new key of an
+    existing table (the loader then says whether the key is allowed)."""
+    node = data
+    for n, part in enumerate(parts):
+        last = n == len(parts) - 1
+        if isinstance(part, int):
+            if not isinstance(node, list) or part >= len(node):
+                return False
+        elif not isinstance(node, dict) or (part not in node and not last):
+            return False
+        elif part not in node:
+            return True
+        node = node[part]
+    return True
+
+
+def prepare(sweep: Sweep, overrides=(), logs_dir=None) -> tuple[ScenarioTask, dict]:
+    """The task of every row and the identity of the sweep (the base every run starts from).
+
+    Applies the sweep's [set] then ``overrides`` (the command line's --set texts) to the base
+    scenario and validates it: an invalid base is an error before any run. Checks that every varied
+    key path exists in the resolved base (a typo would fail every run).
+    """
+    src = str(sweep.scenario)
+    try:
+        raw = tomllib.loads(sweep.scenario.read_text(encoding="utf-8"))
+    except (UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
+        raise ScenarioError(src, "(file)", "a TOML scenario file", str(exc)) from None
+    where = {}
+    for text in [override_text(p, v) for p, v in sweep.set] + list(overrides):
+        where[apply_override(raw, text, src)] = text
+    resolved = scenario_to_dict(scenario_from_dict(raw, src, where))
+    varied = [(key_label("grid", a.name) if len(a.params) > 1 else "grid", p.path) for a in sweep.axes for p in a.params]
+    for table, path in varied + [("draw", d.path) for d in sweep.draws]:
+        parts, _, _ = parse_override(f"{path}=0", sweep.source)
+        if not _has_path(resolved, parts):
+            raise SweepError(sweep.source, key_label(table, path),
+                             f"a key path of the base scenario {sweep.scenario.name}", repr(path))
+    return ScenarioTask(raw, sweep.source, None if logs_dir is None else str(logs_dir)), {"base": raw}
