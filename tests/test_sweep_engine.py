@@ -189,3 +189,41 @@ def test_resume_after_an_interruption_runs_only_the_missing_rows(tmp_path):
     assert results(read_table(out.table)) == results(read_table(full.table))
     assert sorted(read_journal(journal)) == list(range(12))
     assert all(json.loads(line) for line in journal.read_text().splitlines())
+
+
+# -- report ------------------------------------------------------------------------------------------
+def test_report_fits_the_log_log_slope_of_each_series_from_completed_runs_only(tmp_path):
+    from ftstab_mj.sweep.report import make_report
+    from ftstab_mj.sweep.table import write_table
+
+    body = ('[[report.plot]]\nx = "h"\ny = "metrics.acc"\nby = "r"\nlogx = true\nlogy = true\nfit = true\n'
+            '[[report.plot]]\nx = "h"\ny = "metrics.other"\n')
+    sw = load_sweep(write_sweep(tmp_path, body))
+    rows, i = [], 0
+    for r, (c, p) in {2: (2.0, 1.5), 3: (0.5, 3.0)}.items():
+        for h in (1e-4, 1e-3, 1e-2):
+            for sample, spread in enumerate((1 / 1.1, 1.0, 1.3)):  # 3 runs per point: the fit goes through the median
+                acc = c * h ** p * spread
+                rows.append({"row": i, "sample": sample, "h": h, "r": r, "status": "completed", "error": "",
+                             "elapsed_s": 0.1, "metrics.acc": acc, "metrics.other": 1.0})
+                i += 1
+    rows.append({"row": i, "sample": 0, "h": 1e-2, "r": 2, "status": "diverged", "error": "|z| > 1e3",
+                 "elapsed_s": 0.1, "metrics.acc": 1e6, "metrics.other": 1.0})  # not a result to fit
+    table = write_table(rows, tmp_path / "s.parquet")
+    paths, fits = make_report(sw, table, tmp_path / "report")
+    assert [p.read_bytes()[:4] for p in paths] == [b"\x89PNG"] * 2
+    assert [(f.series, f.points) for f in fits] == [("r = 2", 3), ("r = 3", 3)]
+    assert fits[0].slope == pytest.approx(1.5, abs=1e-9) and fits[1].slope == pytest.approx(3.0, abs=1e-9)
+    assert 10 ** fits[0].intercept == pytest.approx(2.0, rel=1e-9)
+
+
+def test_report_names_a_missing_column(tmp_path):
+    from ftstab_mj.sweep.report import make_report
+    from ftstab_mj.sweep.table import write_table
+
+    sw = load_sweep(write_sweep(tmp_path, '[[report.plot]]\nx = "h"\ny = "metrics.acc"\n'))
+    table = write_table([{"row": 0, "sample": 0, "h": 1.0, "status": "completed", "metrics.acc_z": 1.0}],
+                        tmp_path / "s.csv")
+    with pytest.raises(SweepError, match=r"s\.toml: report\.plot\[0\]\.y: expected a column of the sweep's table, "
+                                         r"found 'metrics\.acc' \(did you mean 'metrics\.acc_z'\?\)"):
+        make_report(sw, table, tmp_path / "report")

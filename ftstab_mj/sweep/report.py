@@ -76,7 +76,7 @@ def plot_one(spec: PlotSpec, table: dict, sweep: Sweep, where: str, path: Path) 
     FigureCanvasAgg(fig)
     ax = fig.add_subplot()
     fits = []
-    groups = sorted({by[i] for i in keep}, key=lambda v: (v is None, str(v) if not isinstance(v, (int, float)) else v))
+    groups = sorted({by[i] for i in keep}, key=lambda v: (type(v).__name__, v))  # one type per column but None
     for n, g in enumerate(groups):
         idx = [i for i in keep if by[i] == g]
         x, y = np.array([xs[i] for i in idx], float), np.array([ys[i] for i in idx], float)

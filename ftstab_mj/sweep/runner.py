@@ -18,6 +18,7 @@ from ftstab_mj.errors import ScenarioError, SweepError
 from ftstab_mj.records import COMPLETED, INTERRUPTED
 from ftstab_mj.scenario import apply_override, scenario_from_dict, scenario_to_dict
 from ftstab_mj.scenario.loader import parse_override
+from ftstab_mj.sweep.expand import draw_value, grid_values
 from ftstab_mj.sweep.spec import Sweep, key_label
 
 
@@ -74,20 +75,29 @@ class ScenarioTask:
 
 
 def _has_path(data, parts) -> bool:
-    """Whether the key path (parts of parse_override) exists in ``data``, or names a new key of an
-    existing table (the loader then says whether the key is allowed)."""
+    """Whether the key path (parts of parse_override) exists in ``data``."""
     node = data
-    for n, part in enumerate(parts):
-        last = n == len(parts) - 1
+    for part in parts:
         if isinstance(part, int):
             if not isinstance(node, list) or part >= len(node):
                 return False
-        elif not isinstance(node, dict) or (part not in node and not last):
+        elif not isinstance(node, dict) or part not in node:
             return False
-        elif part not in node:
-            return True
         node = node[part]
     return True
+
+
+def _unknown_key(raw: dict, path: str, value, source: str) -> bool:
+    """Whether setting ``path`` (absent from the resolved base) is refused by the loader as an unknown
+    key (a typo). A key the schema knows but the base leaves out (an optional field) is fine."""
+    trial = copy.deepcopy(raw)
+    text = override_text(path, value)
+    apply_override(trial, text, source)
+    try:
+        scenario_from_dict(trial, source, {path: text})
+    except ScenarioError as exc:
+        return exc.path == path and exc.found.startswith("unknown key")
+    return False
 
 
 def prepare(sweep: Sweep, overrides=(), logs_dir=None) -> tuple[ScenarioTask, dict]:
@@ -95,7 +105,7 @@ def prepare(sweep: Sweep, overrides=(), logs_dir=None) -> tuple[ScenarioTask, di
 
     Applies the sweep's [set] then ``overrides`` (the command line's --set texts) to the base
     scenario and validates it: an invalid base is an error before any run. Checks that every varied
-    key path exists in the resolved base (a typo would fail every run).
+    key path is in the resolved base or is a key the schema knows (a typo would fail every run).
     """
     src = str(sweep.scenario)
     try:
@@ -106,10 +116,12 @@ def prepare(sweep: Sweep, overrides=(), logs_dir=None) -> tuple[ScenarioTask, di
     for text in [override_text(p, v) for p, v in sweep.set] + list(overrides):
         where[apply_override(raw, text, src)] = text
     resolved = scenario_to_dict(scenario_from_dict(raw, src, where))
-    varied = [(key_label("grid", a.name) if len(a.params) > 1 else "grid", p.path) for a in sweep.axes for p in a.params]
-    for table, path in varied + [("draw", d.path) for d in sweep.draws]:
+    varied = [(a.label(p.path), p.path) for a in sweep.axes for p in a.params]
+    first = {p.path: grid_values(p)[0] for a in sweep.axes for p in a.params}
+    first.update({d.path: draw_value(d, sweep.seed, 0) for d in sweep.draws})
+    for label, path in varied + [(key_label("draw", d.path), d.path) for d in sweep.draws]:
         parts, _, _ = parse_override(f"{path}=0", sweep.source)
-        if not _has_path(resolved, parts):
-            raise SweepError(sweep.source, key_label(table, path),
+        if not _has_path(resolved, parts) and _unknown_key(raw, path, first[path], src):
+            raise SweepError(sweep.source, label,
                              f"a key path of the base scenario {sweep.scenario.name}", repr(path))
     return ScenarioTask(raw, sweep.source, None if logs_dir is None else str(logs_dir)), {"base": raw}

@@ -75,6 +75,11 @@ class Axis:
 
     name: str  # the key path, or the group's name for [grid.<group>]
     params: tuple[GridParam, ...]
+    group: bool = False
+
+    def label(self, path: str) -> str:
+        """Where ``path`` is varied in the sweep file: grid."sim.period", or grid.<group>."plant.model"."""
+        return key_label(key_label("grid", self.name), path) if self.group else key_label("grid", path)
 
 
 @dataclass(frozen=True)
@@ -220,7 +225,7 @@ class _Reader:
                 if not key.replace("_", "").replace("-", "").isalnum():
                     raise self.error(p, "a group name of letters, digits, '_' and '-'", repr(key))
                 params = tuple(self.grid_param(k, v, key_label(p, k)) for k, v in body.items())
-                axes.append(Axis(key, params))
+                axes.append(Axis(key, params, group=True))
             else:
                 axes.append(Axis(key, (self.grid_param(key, body, p),)))
         return tuple(axes)
@@ -298,9 +303,8 @@ class _Reader:
         if samples > 1 and not draws:
             raise self.error("samples", "1 when there is no [draw] table (identical runs otherwise)", str(samples))
         seen: dict[str, str] = {}
-        for where, path in ([(key_label(key_label("grid", a.name), p.path) if len(a.params) > 1 else key_label("grid", p.path),
-                              p.path) for a in axes for p in a.params]
-                            + [(key_label("draw", d.path), d.path) for d in draws]):
+        varied = [(a.label(p.path), p.path) for a in axes for p in a.params]
+        for where, path in varied + [(key_label("draw", d.path), d.path) for d in draws]:
             if path in seen:
                 raise self.error(where, "each key path varied once", f"{path!r}, also varied at {seen[path]}")
             seen[path] = where
