@@ -45,7 +45,7 @@ samples = 2
 def test_shipped_accuracy_vs_period_sweep_end_to_end(tmp_path):
     sweep = SWEEPS / "robust_accuracy_vs_period.toml"
     out = tmp_path / "o"
-    res = run_cli("sweep", sweep, "--set", "sim.duration=0.2", "--out", out, "--engine", "processes",
+    res = run_cli("sweep", sweep, "--set", "sim.duration=0.1", "--out", out, "--engine", "processes",
                   "--workers", "2", "--report")
     assert res.returncode == 0, res.stderr
     t = read_table(out / "robust_accuracy_vs_period.parquet")
@@ -60,7 +60,7 @@ def test_shipped_accuracy_vs_period_sweep_end_to_end(tmp_path):
     # a row is the base scenario + the sweep's overrides, run as `ftstab run` runs it: same metrics
     sw = load_sweep(sweep)
     row = expand(sw)[5]
-    texts = [override_text(p, v) for p, v in sw.set] + ["sim.duration=0.2"] + [override_text(p, v) for p, v in row.params]
+    texts = [override_text(p, v) for p, v in sw.set] + ["sim.duration=0.1"] + [override_text(p, v) for p, v in row.params]
     direct = flatten(run_scenario(load_scenario(sw.scenario, texts)).metrics, "metrics", {})
     assert {k: t[k][5] for k in direct} == direct
 
@@ -101,7 +101,7 @@ def test_same_table_serially_on_two_processes_and_on_two_dask_workers(tmp_path):
 
 
 def test_interrupted_sweep_resumes_without_rerunning_finished_rows(tmp_path):
-    sweep = small_sweep(tmp_path, duration=3.0)
+    sweep = small_sweep(tmp_path, duration=1.5)
     out = tmp_path / "o"
     proc = subprocess.Popen([sys.executable, "-m", "ftstab_mj", "sweep", sweep, "--out", str(out)], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     journal = out / "small.jsonl"
