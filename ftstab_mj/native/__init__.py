@@ -43,9 +43,11 @@ class FtLaw(ctypes.Structure):
 
 
 class FtInput(ctypes.Structure):
-    """Mirror of ft_input: a table of values (one per sub-step) or the worst case (values NULL)."""
+    """Mirror of ft_input: a table of values (one per sub-step), or (values NULL) a state-dependent
+    signal by its values for dV1/dz_r > 0, < 0 and = 0."""
 
-    _fields_ = [("values", _dbl), ("offset", ctypes.c_double), ("amplitude", ctypes.c_double)]
+    _fields_ = [("values", _dbl), ("if_pos", ctypes.c_double), ("if_neg", ctypes.c_double),
+                ("if_zero", ctypes.c_double)]
 
 
 def _find_library() -> tuple[ctypes.CDLL | None, str]:
@@ -163,10 +165,10 @@ def advance_phi_hat(law, V1, phi_hat, h: float, substeps: int = RK4_SUBSTEPS) ->
 
 def chain_input(signal, t_sub: np.ndarray) -> tuple[FtInput, np.ndarray | None]:
     """The kernel's view of a Signal over the sub-step instants t_sub (nsteps, substeps): a table of
-    its values, or the worst case's (offset, amplitude). Returns the struct and the array it points
-    into (keep it alive while the struct is used)."""
+    its values, or for a state-dependent signal (a function of sign(dV1/dz_r) only) its three
+    values. Returns the struct and the array it points into (keep it alive while the struct is used)."""
     if signal.state_dependent:
-        return FtInput(None, signal.offset, signal.amplitude), None
+        return FtInput(None, *(float(signal(0.0, s)) for s in (1.0, -1.0, 0.0))), None
     values = np.ascontiguousarray(signal(t_sub), dtype=float)
     return FtInput(values.ctypes.data_as(_dbl), 0.0, 0.0), values
 

@@ -161,15 +161,17 @@ void ft_advance_phi_hat(const ft_law *L, int64_t n, const double *V1, const doub
 }
 
 /* An input of the ideal chain (phi or gamma): either a table over the sub-step instants
- * (values[step * substeps + s], the same for every trajectory) or the state-dependent worst case
- * offset - amplitude * sign(dV1/dz_r) (disturbances.py Signal "worst_case"). */
+ * (values[step * substeps + s], the same for every trajectory) or a state-dependent signal
+ * (values NULL, disturbances.py "worst_case") given by its three values for dV1/dz_r > 0, < 0, = 0,
+ * which Python evaluates with the Signal itself (the sign convention lives there only). */
 typedef struct {
-    const double *values; /* NULL for the worst case */
-    double offset, amplitude;
+    const double *values;
+    double if_pos, if_neg, if_zero;
 } ft_input;
 
 static inline double input_at(const ft_input *in, int64_t idx, double dV) {
-    return in->values ? in->values[idx] : in->offset + in->amplitude * -np_sign(dV);
+    if (in->values) return in->values[idx];
+    return dV > 0.0 ? in->if_pos : (dV < 0.0 ? in->if_neg : (dV == 0.0 ? in->if_zero : dV));
 }
 
 /* The ideal chain (ideal_chain.py simulate_chain) for n trajectories over nsteps control periods.
