@@ -329,7 +329,7 @@ class Simulation:
             rec["u0"][row] = out.u0
             rec["V1"][row] = out.V1
             rec["dV1_dzr"][row] = out.dV1_dzr
-            rec["phi_hat"][row] = phi_hat
+            rec["phi_hat"][row] = out.phi_hat  # the law's (robust: phibar / gamma_m), as the ideal chain logs it
             rec["gamma_hat"][row] = out.gamma_hat
             ud[i] = advance_phi_hat(law, out.V1, phi_hat, self.period)
         self._ctrl[s:s + self.N] = self._gain[s:s + self.N] * self._u  # held u times each step's gain

@@ -34,6 +34,8 @@ def test_logged_cart_samples_match_the_chain_dynamics(tmp_path):
              sinks=[McapSink(path)], batch_size=200, metrics=compute_metrics)
     a = read_log(path).loops["cart"]
     assert len(a["t"]) == 600
+    # the robust law's estimates are its constants (laws.py: same meaning for every law)
+    assert np.all(a["phi_hat"] == 1.0 / 0.5) and np.all(a["gamma_hat"] == 1.0 / 0.5)
     dzr = np.diff(a["z"][:, 1])
     predicted = h * (a["phi"] + a["gamma"] * a["u"])[:-1]
     L_phi, L_gamma = 2 * np.pi * 0.5 * 0.8, 2 * np.pi * 0.3 * 0.4
