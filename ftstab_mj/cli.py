@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 
 from ftstab_mj.errors import CallbackError, FtstabError
@@ -107,16 +108,41 @@ def cmd_replay(args) -> int:
             print("recorded metrics: identical to the ones recomputed from the samples")
         if args.rrd:
             print(f"wrote {args.rrd}")
+    failed = False
     if diff:
         print(f"{args.log}: metrics recomputed from the log differ from the recorded ones:", file=sys.stderr)
         print("\n".join(diff), file=sys.stderr)
-        return 1
-    return 0
+        failed = True
+    if args.verify:
+        from ftstab_mj.logs.verify import verify_log
+
+        v = verify_log(log)
+        if v.ok:
+            print(f"verify: re-ran the recorded scenario: all {v.compared} logged values are bit-identical",
+                  file=sys.stderr if args.json else sys.stdout)
+        else:
+            print(f"{args.log}: verify failed: the re-run of the recorded scenario differs from the log:", file=sys.stderr)
+            print("\n".join(f"  {p}" for p in v.problems), file=sys.stderr)
+            failed = True
+    return 1 if failed else 0
 
 
 def cmd_check(args) -> int:
-    from ftstab_mj.expectations import check_metrics, load_expectations
+    from ftstab_mj.expectations import PIN_HEADER, check_metrics, load_expectations, pin_expectations, to_toml
 
+    if args.pin:
+        log = _read_log(args.log)
+        metrics = _replayed_metrics(log)
+        source = (f"Pinned from {os.path.basename(args.log)}: scenario {log.info.scenario.get('name', '?')}, "
+                  f"{metrics['duration']:g} s, control period {log.info.period:g} s.")
+        text = to_toml(pin_expectations(metrics, log.info), PIN_HEADER + "\n" + source)
+        try:
+            with open(args.pin, "w") as f:
+                f.write(text)
+        except OSError as exc:
+            raise UsageError(f"--pin {args.pin}: cannot write the expectation file ({exc.strerror})") from None
+        print(f"wrote {args.pin}: the metrics of {args.log} with the default tolerances")
+        return 0
     expected = load_expectations(args.expect)
     log = _read_log(args.log)
     outcomes = check_metrics(_replayed_metrics(log), expected, source=args.expect)
@@ -250,10 +276,13 @@ def build_parser() -> argparse.ArgumentParser:
     rp = sub.add_parser("replay", help="recompute the metrics of a run from its MCAP log",
                         description="Read LOG.mcap (a truncated log up to its last complete chunk), recompute "
                                     "the metrics from the logged samples and compare them with the ones recorded "
-                                    "at the end of the run (exit 1 if they differ).")
+                                    "at the end of the run (exit 1 if they differ, or if --verify finds a "
+                                    "difference).")
     rp.add_argument("log", metavar="LOG.mcap")
     rp.add_argument("--json", action="store_true", help="print the metrics as JSON")
     rp.add_argument("--rrd", metavar="OUT.rrd", help="also write a Rerun recording of the log")
+    rp.add_argument("--verify", action="store_true",
+                    help="re-run the scenario recorded in the log and check that the samples are bit-identical")
     rp.set_defaults(func=cmd_replay)
 
     ck = sub.add_parser("check", help="compare a log's metrics with pinned values and tolerances",
@@ -261,7 +290,10 @@ def build_parser() -> argparse.ArgumentParser:
                                     "recomputed from LOG.mcap, 1 with the failing ones listed otherwise. Format: "
                                     "see ftstab_mj/expectations.py.")
     ck.add_argument("log", metavar="LOG.mcap")
-    ck.add_argument("--expect", required=True, metavar="EXPECT.toml")
+    what = ck.add_mutually_exclusive_group(required=True)
+    what.add_argument("--expect", metavar="EXPECT.toml", help="the pinned metrics to compare with")
+    what.add_argument("--pin", metavar="OUT.toml", help="write OUT.toml: this log's metrics with the default "
+                                                       "tolerances (ftstab_mj/expectations.py), to check later runs")
     ck.set_defaults(func=cmd_check)
     r = sub.add_parser(
         "run", help="run a scenario file, write its logs, print its metrics",

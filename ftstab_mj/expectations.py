@@ -146,3 +146,100 @@ def check_metrics(metrics: dict, expected: dict, source: str = "<expectations>")
 
     walk(expected, metrics, "")
     return out
+
+
+# -- pinning: an expectation file from a log, with tolerances from the maths and the step ---------
+
+CHATTER_RTOL = 0.25  # amplitudes of the chattering band (final accuracy, chattering, V1 max after entry)
+TIMING_PERIODS = 2  # settling / entry times: one period of metric resolution + one of sample phase
+INTEGRAL_RTOL = 1e-3  # effort integrals (dominated by the smooth transient)
+CLOSED_FORM_RTOL = 1e-9  # closed-form values (V1 of z0) and exact copies
+CERTIFICATE_RTOL = 1e-6  # values from the seeded certificate (c, c'): last digits may move with NumPy
+
+
+def _tol(value, **tol):
+    """A spec, or null = true when the value is undefined."""
+    if value is None:
+        return {"null": True}
+    return {"value": value, **{k: v for k, v in tol.items() if v}}
+
+
+def pin_loop(m: dict, period: float, rate: float | None) -> dict:
+    """Expectations for one loop's metrics (see :data:`TIMING_PERIODS` and the other constants).
+
+    phi_hat (adaptive, rate = the adaptation rate): grows at most at ``rate`` per second, so a timing
+    shift of TIMING_PERIODS periods moves it by at most TIMING_PERIODS * period * rate.
+    """
+    dt = TIMING_PERIODS * period
+    out = {
+        "law": m["law"], "n_samples": m["n_samples"], "z0": m["z0"],
+        "V1_initial": _tol(m["V1_initial"], rtol=CLOSED_FORM_RTOL),
+        "settle_time": _tol(m["settle_time"], atol=dt),
+        "time_bound": _tol(m["time_bound"], rtol=CERTIFICATE_RTOL),
+        "bound_applies": m["bound_applies"],
+        "final_abs_z_max": _tol(m["final_abs_z_max"], rtol=CHATTER_RTOL, atol=1e-12),
+        "chattering": _tol(m["chattering"], rtol=CHATTER_RTOL, atol=1e-12),
+        "effort_abs": _tol(m["effort_abs"], rtol=INTEGRAL_RTOL),
+        "effort_sq": _tol(m["effort_sq"], rtol=INTEGRAL_RTOL),
+        "u_max_abs": _tol(m["u_max_abs"], rtol=INTEGRAL_RTOL),
+        "eps_entry_time": _tol(m["eps_entry_time"], atol=dt),
+        "V1_max_after_entry": _tol(m["V1_max_after_entry"], rtol=CHATTER_RTOL, atol=1e-12),
+    }
+    if m["beat_bound"] is not None:
+        out["beat_bound"] = m["beat_bound"]
+    if rate is None:  # phi_hat is a constant of the law
+        out["phi_hat_max"] = _tol(m["phi_hat_max"], rtol=CLOSED_FORM_RTOL)
+    else:
+        out["phi_hat_max"] = _tol(m["phi_hat_max"], atol=dt * rate, rtol=CLOSED_FORM_RTOL)
+        out["phi_hat_final"] = _tol(m["phi_hat_final"], atol=dt * rate, rtol=CLOSED_FORM_RTOL)
+    th = m.get("theorem3")
+    if th:
+        out["theorem3"] = {k: (_tol(th[k], rtol=CERTIFICATE_RTOL) if k in ("Phibar", "Delta", "phi_hat_limsup")
+                               else th[k]) for k in ("Phibar", "Delta", "phi_hat_limsup", "Delta_held",
+                                                      "phi_hat_bound_held", "eps_reached")}
+    return out
+
+
+def pin_expectations(metrics: dict, info) -> dict:
+    """An expectation tree for ``metrics`` of the run described by ``info`` (records.RunInfo)."""
+    rates = {lp.name: (lp.law_params.get("rate") if lp.law == "adaptive" else None) for lp in info.loops}
+    return {"status": metrics["status"], "n_samples": metrics["n_samples"],
+            "loops": {name: pin_loop(m, info.period, rates[name]) for name, m in metrics["loops"].items()}}
+
+
+def _toml_value(v) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, str):
+        return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    if isinstance(v, float):
+        return repr(v) if math.isfinite(v) else ("nan" if v != v else ("inf" if v > 0 else "-inf"))
+    if isinstance(v, list):
+        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
+    if isinstance(v, dict):
+        return "{ " + ", ".join(f"{k} = {_toml_value(x)}" for k, x in v.items()) + " }"
+    return str(v)
+
+
+def to_toml(tree: dict, header: str = "") -> str:
+    """TOML text of an expectation tree: scalars and specs inline, metric groups as tables."""
+    lines = [f"# {line}" if line else "#" for line in header.splitlines()]
+
+    def emit(table: dict, name: str):
+        leaves = {k: v for k, v in table.items() if not (isinstance(v, dict) and not set(v) <= set(SPEC_KEYS))}
+        groups = {k: v for k, v in table.items() if k not in leaves}
+        if name and leaves:
+            lines.append(f"\n[{name}]")
+        lines.extend(f"{k} = {_toml_value(v)}" for k, v in leaves.items())
+        for k, v in groups.items():
+            emit(v, f"{name}.{k}" if name else k)
+
+    emit(tree, "")
+    return "\n".join(lines) + "\n"
+
+
+PIN_HEADER = f"""Pinned metrics (ftstab check LOG.mcap --expect THIS_FILE). Tolerances (ftstab_mj/expectations.py):
+times (settle_time, eps_entry_time): +- {TIMING_PERIODS} control periods (metric resolution + sample phase);
+phi_hat: +- {TIMING_PERIODS} periods x the adaptation rate; V1(z0): rtol {CLOSED_FORM_RTOL:g};
+certificate-derived (time_bound, Theorem 3 constants): rtol {CERTIFICATE_RTOL:g};
+effort integrals and max |u|: rtol {INTEGRAL_RTOL:g}; chattering-band amplitudes: rtol {CHATTER_RTOL:g}."""

@@ -77,3 +77,19 @@ def test_check_cli_exit_codes_and_diff(tmp_path):
         res = run_cli("check", log, "--expect", broken)
         assert res.returncode == 2 and res.stdout == ""
         assert res.stderr.startswith(f"error: {broken}: {where}: expected") and len(res.stderr.splitlines()) == 1
+
+
+def test_pin_then_check_same_log_passes_and_another_run_fails(tmp_path):
+    from ftstab_mj.cli import main
+
+    logs = {}
+    for z0 in (1.0, 1.2):
+        info, loops, pos, quat = synthetic_run("adaptive", z0=(z0, 0.0), duration=3.0, period=2e-3, with_model=False)
+        logs[z0] = tmp_path / f"run{z0}.mcap"
+        write_run(McapSink(logs[z0]), info, loops, pos, quat, COMPLETED, compute_metrics(info, loops, COMPLETED))
+    pinned = tmp_path / "pinned.toml"
+    assert main(["check", str(logs[1.0]), "--pin", str(pinned)]) == 0
+    text = pinned.read_text()
+    assert "settle_time = { " in text and "atol = 0.004" in text  # two periods of 2 ms
+    assert main(["check", str(logs[1.0]), "--expect", str(pinned)]) == 0
+    assert main(["check", str(logs[1.2]), "--expect", str(pinned)]) == 1

@@ -184,7 +184,7 @@ class McapSink:
         for name, arrays in batch.loops.items():
             times = np.rint(np.asarray(arrays["t"], dtype=float) * 1e9).astype(np.int64)
             self._writer.add_messages(self._ch_loop[name], times, loop_messages(arrays))
-        if self._ch_tf is not None:
+        if self._ch_tf is not None and batch.body_pos.shape[1]:  # a batch may come without poses
             self._write_poses(batch)
         self._n += len(batch)
         self._writer.flush()
