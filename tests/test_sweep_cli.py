@@ -76,18 +76,22 @@ def test_shipped_adaptive_vs_amplitude_sweep_end_to_end(tmp_path):
     assert min(amps) == 0.25 and max(amps) == 8.0 and len(set(amps)) == 6
     assert len(set(t["loops.cart.disturbance.freq"])) == 4  # 4 draws, the same at every amplitude
     assert all(v is not None and v >= 0 for v in t["metrics.loops.cart.phi_hat_max"])
-    assert len(list((out / "report").glob("*.png"))) == 3
+    assert len(list((out / "report").glob("*.png"))) == 4
 
 
 def test_same_table_serially_on_two_processes_and_on_two_dask_workers(tmp_path):
+    """The dask run goes to a 2-worker LocalCluster started here, through --scheduler ADDRESS."""
+    from distributed import LocalCluster
+
     sweep = small_sweep(tmp_path)
     tables = {}
-    for name, args in (("serial", ()), ("processes", ("--engine", "processes", "--workers", "2")),
-                       ("dask", ("--workers", "2"))):
-        res = run_cli("sweep", sweep, "--out", tmp_path / name, *args)
-        assert res.returncode == 0, res.stderr
-        assert "12/12 runs in the table (8 completed, 4 failed)" in res.stdout
-        tables[name] = results(read_table(tmp_path / name / "small.parquet"))
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
+        for name, args in (("serial", ()), ("processes", ("--engine", "processes", "--workers", "2")),
+                           ("dask", ("--scheduler", cluster.scheduler_address))):
+            res = run_cli("sweep", sweep, "--out", tmp_path / name, *args)
+            assert res.returncode == 0, res.stderr
+            assert "12/12 runs in the table (8 completed, 4 failed)" in res.stdout
+            tables[name] = results(read_table(tmp_path / name / "small.parquet"))
     assert tables["processes"] == tables["serial"]
     assert tables["dask"] == tables["serial"]
     t = tables["serial"]
@@ -148,3 +152,12 @@ def test_bad_input_is_one_line_and_exit_2(tmp_path, edit, args, message):
     assert res.stderr.count("\n") == 1 and "Traceback" not in res.stderr
     assert re.search(message, res.stderr), res.stderr
     assert not (tmp_path / "o").exists()  # nothing written before the inputs are checked
+
+
+def test_an_unreachable_scheduler_is_one_line_and_leaves_nothing_to_resume(tmp_path):
+    sweep = small_sweep(tmp_path)
+    res = run_cli("sweep", sweep, "--out", tmp_path / "o", "--scheduler", "tcp://127.0.0.1:1")
+    assert res.returncode == 2 and "Traceback" not in res.stderr
+    assert res.stderr.strip().splitlines()[-1].startswith(
+        "error: --scheduler: expected a reachable Dask scheduler, could not reach the scheduler at tcp://127.0.0.1:1")
+    assert list((tmp_path / "o").iterdir()) == []  # the same command works once the scheduler is up

@@ -20,7 +20,7 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from ftstab_mj.errors import SweepError
+from ftstab_mj.errors import EngineError, SweepError
 from ftstab_mj.records import COMPLETED
 from ftstab_mj.sweep.engine import execute
 from ftstab_mj.sweep.expand import Row
@@ -107,6 +107,12 @@ def run_sweep(name: str, rows: list[Row], task, out_dir, identity: dict, *, engi
                            + (f"; {left} to go, ~{eta:.0f} s left" if left else ""))
     except KeyboardInterrupt:
         outcome.interrupted = True
+    except EngineError:
+        if not done:  # nothing ran: leave no trace, so the same command works once the engine is there
+            journal.close()
+            header.unlink()
+            journal_path.unlink(missing_ok=True)
+        raise
     finally:
         results.close()  # stops the engine (pool, cluster) even when interrupted
         journal.close()

@@ -42,6 +42,7 @@ The expansion into runs is in :mod:`ftstab_mj.sweep.expand`.
 from __future__ import annotations
 
 import math
+import os
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
@@ -283,7 +284,7 @@ class _Reader:
         self.table(raw, "", keys, required=("name", "description", "scenario"))
         name = self.string(raw["name"], "name", identifier)
         description = self.string(raw["description"], "description", one_line)
-        scenario = base_dir / self.string(raw["scenario"], "scenario")
+        scenario = Path(os.path.normpath(base_dir / self.string(raw["scenario"], "scenario")))
         if not scenario.is_file():
             raise self.error("scenario", "an existing scenario file, relative to the sweep file",
                              f"{raw['scenario']!r} (no such file: {scenario})")
