@@ -9,6 +9,8 @@ import time
 import pytest
 
 from conftest import ROOT, run_cli
+from ftstab_mj.logs.reader import read_log
+from ftstab_mj.metrics import compute_metrics
 from ftstab_mj.scenario import load_scenario
 from ftstab_mj.scenario.run import run_scenario
 from ftstab_mj.sweep import expand, load_sweep
@@ -86,7 +88,7 @@ def test_same_table_serially_on_two_processes_and_on_two_dask_workers(tmp_path):
     sweep = small_sweep(tmp_path)
     tables = {}
     with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
-        for name, args in (("serial", ()), ("processes", ("--engine", "processes", "--workers", "2")),
+        for name, args in (("serial", ("--logs",)), ("processes", ("--engine", "processes", "--workers", "2")),
                            ("dask", ("--scheduler", cluster.scheduler_address))):
             res = run_cli("sweep", sweep, "--out", tmp_path / name, *args)
             assert res.returncode == 0, res.stderr
@@ -102,6 +104,15 @@ def test_same_table_serially_on_two_processes_and_on_two_dask_workers(tmp_path):
             assert t["metrics.loops.cart.V1_final"][i] is None
         else:
             assert t["status"][i] == "completed" and t["metrics.loops.cart.V1_final"][i] is not None
+    # --logs: each completed run's MCAP log replays to the metrics of its row; a run refused by the
+    # loader never started, so it has no log
+    logs = tmp_path / "serial" / "logs"
+    done = [i for i, s in enumerate(t["status"]) if s == "completed"]
+    assert sorted(p.name for p in logs.glob("*.mcap")) == [f"row{i:05d}.mcap" for i in done]
+    assert len(list(logs.glob("*.rrd"))) == len(done)
+    data = read_log(logs / f"row{done[-1]:05d}.mcap")
+    replayed = flatten(compute_metrics(data.info, data.loops, data.recorded["status"]), "metrics", {})
+    assert replayed == {k: t[k][done[-1]] for k in replayed}
 
 
 def test_interrupted_sweep_resumes_without_rerunning_finished_rows(tmp_path):
