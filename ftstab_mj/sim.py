@@ -14,7 +14,13 @@ writes the control and records the sample. Every other callback call (the rest o
 RK4 stages, stray forward passes) returns at once, so the control is held over the period whatever
 the integrator. The per-step inputs (gain factor, injected disturbance; plants/base.py) are written
 by the loop before each step. The per-sample computation is :meth:`Simulation._sample` (reads z,
-law.output, writes ctrl): the one place a native callback would replace.
+law.output, writes ctrl).
+
+Native path (``native=True | "auto"``, the default "auto"): the same per-sample and per-step work
+done by a C callback (ftstab_mj/native/run.py, kernel.c) so that a whole batch runs in one
+``mj_step(m, d, nstep)``; it records the same samples (to rounding: tests/test_native_sim.py).
+"auto" uses it when the kernel is built and the simulation is one it handles (Euler or
+implicitfast, a plant with a native sensor map, the three laws), and Python otherwise.
 
 State. The adaptive phi_hat is integrated exactly once per period (``advance_phi_hat``, V1 held)
 and lives in MuJoCo's ``userdata``, so ``mj_getState(mjSTATE_INTEGRATION)`` (which also holds
@@ -34,10 +40,12 @@ from dataclasses import dataclass, field
 import mujoco
 import numpy as np
 
+from ftstab_mj import native as native_path
 from ftstab_mj.callback import control_callback
 from ftstab_mj.control.laws import AdaptiveLaw, NominalLaw, RobustLaw, advance_phi_hat
 from ftstab_mj.disturbances import Signal
 from ftstab_mj.errors import CallbackError, ParameterError
+from ftstab_mj.native import run as native_run
 from ftstab_mj.plants.base import Plant
 from ftstab_mj.records import (COMPLETED, DIVERGED, FAILED, INTERRUPTED, LOOP_FIELDS, LoopInfo,
                                MetricSettings, RunInfo, SampleBatch)
@@ -119,7 +127,7 @@ class Simulation:
     """
 
     def __init__(self, plant: Plant, loops, period: float, physics_step: float, integrator: str = "euler",
-                 divergence_limit: float = 1e6):
+                 divergence_limit: float = 1e6, native="auto"):
         self.N = steps_per_period(period, physics_step)
         self.period, self.physics_step = float(period), float(physics_step)
         if not (isinstance(divergence_limit, (int, float)) and divergence_limit > 0):
@@ -145,7 +153,23 @@ class Simulation:
         self._rec = None
         self._row = -1
         self._warnings = [self.data.warning[int(k)] for k in _DIVERGENCE_WARNINGS]  # live views of d.warning
-        self.callback = self._control  # one bound-method object, so "is it installed" is an identity test
+        self._native = self._native_run(native)
+        # one object, so "is it installed" is an identity test
+        self.callback = self._control if self._native is None else self._native.callback
+
+    def _native_run(self, native):
+        """The native callback (ftstab_mj/native/run.py) when ``native`` (True | False | "auto") asks
+        for it and it can run this simulation; None for the Python callback :meth:`_control`."""
+        if not native_path.use_native(native):
+            return None
+        why = native_run.unsupported(self.plant, self.laws, self.loops, self.integrator)
+        if why:
+            if native is True:
+                raise native_path.NativeUnavailable(f"native=True but {why}")
+            return None
+        return native_run.NativeRun(self.model, self.data, self.plant, self.loops, self.laws, self.refs,
+                                    self._force_factor, self._body_ids, self.period, self.physics_step, self.N,
+                                    self.divergence_limit)
 
     @staticmethod
     def _check_loops(plant: Plant, loops) -> tuple:
@@ -230,10 +254,25 @@ class Simulation:
         self._force = self._inj * self._force_factor
         self._ctrl = np.zeros((n_samples * N, n))
         self._start_batch(n_samples)
+        warn0 = self._warning_count()
+        if self._native is None:
+            self._step_batch(n_samples, warn0)
+        else:  # the same work, in C, inside one mj_step(nstep) call
+            self._native.run_batch(m, d, self._t, self._inj, self._gain, self._force, self._ctrl, self._rec_t,
+                                   self._rec_z, [self._rec_scalars[f] for f in _SCALARS], self._pos, self._quat)
+            self._row = self._native.rows - 1
+            self.stop_reason = self._native.stop_reason([L.name for L in self.loops], self.divergence_limit)
+        if not self.stop_reason and self._warning_count() != warn0:
+            self.stop_reason = f"diverged before t = {d.time:.6g} s: MuJoCo reported a bad state ({self._warning_text()})"
+        return self.take_batch()
+
+    def _step_batch(self, n_samples: int, warn0: int) -> None:
+        """The Python path of :meth:`advance`: one mj_step per physics step, the per-step inputs
+        written here, the law evaluated by :meth:`_control` at the first step of each period."""
+        m, d, N, n = self.model, self.data, self.N, self.plant.n
         force, ctrl_steps = self._force, self._ctrl
         ctrl, qfrc = d.ctrl, d.qfrc_applied
         integrating, refresh = self.plant.integrating, self.plant.refresh_before_sample
-        warn0 = self._warning_count()
         step = mujoco.mj_step
         for k in range(n_samples):
             base = k * N
@@ -256,9 +295,6 @@ class Simulation:
                 else:
                     qfrc[:n] = force[s]
                     step(m, d)
-        if not self.stop_reason and self._warning_count() != warn0:
-            self.stop_reason = f"diverged before t = {d.time:.6g} s: MuJoCo reported a bad state ({self._warning_text()})"
-        return self.take_batch()
 
     def _warning_count(self) -> int:
         return sum(w.number for w in self._warnings)
@@ -267,9 +303,14 @@ class Simulation:
         return ", ".join(f"{k.name} x{w.number}" for k, w in zip(_DIVERGENCE_WARNINGS, self._warnings) if w.number)
 
     def _start_batch(self, n_samples: int) -> None:
-        n_body = len(self._body_ids)
-        self._rec = [{"t": np.empty(n_samples), "z": np.empty((n_samples, self.plant.r)),
-                      **{f: np.empty(n_samples) for f in _SCALARS}} for _ in self.loops]
+        n_body, n_loops = len(self._body_ids), len(self.loops)
+        # One array per field for all loops (the native callback writes them); each loop's record
+        # is a view of its row.
+        self._rec_t = np.empty(n_samples)
+        self._rec_z = np.empty((n_loops, n_samples, self.plant.r))
+        self._rec_scalars = {f: np.empty((n_loops, n_samples)) for f in _SCALARS}
+        self._rec = [{"t": self._rec_t, "z": self._rec_z[i], **{f: a[i] for f, a in self._rec_scalars.items()}}
+                     for i in range(n_loops)]
         self._pos = np.empty((n_samples, n_body, 3))
         self._quat = np.empty((n_samples, n_body, 4))
         self._row = -1
@@ -355,7 +396,7 @@ def sample_count(duration: float, period: float) -> int:
 
 def simulate(plant: Plant, loops, duration: float, period: float, physics_step: float, integrator: str = "euler",
              sinks=(), batch_size: int = 1000, divergence_limit: float = 1e6, scenario_dict: dict | None = None,
-             metric_settings: MetricSettings | None = None, metrics=None) -> RunResult:
+             metric_settings: MetricSettings | None = None, metrics=None, native="auto") -> RunResult:
     """Run ``loops`` (LoopSpec, one per plant loop) on ``plant`` for ``duration`` seconds.
 
     period: control period (s), an integer multiple of physics_step (s); integrator: "euler"
@@ -363,8 +404,9 @@ def simulate(plant: Plant, loops, duration: float, period: float, physics_step: 
     ``batch_size`` samples. metrics: optional callable (RunInfo, {loop: {field: array}}, status) -> dict
     (e.g. ftstab_mj.metrics.compute_metrics) whose result is handed to the sinks' close. Returns a RunResult (status completed, diverged or
     interrupted); raises CallbackError when the controller raised (sinks closed with "failed").
+    native: True | False | "auto": the controller in the C callback or in Python (see Simulation).
     """
-    sim = Simulation(plant, loops, period, physics_step, integrator, divergence_limit)
+    sim = Simulation(plant, loops, period, physics_step, integrator, divergence_limit, native)
     n_total = sample_count(duration, period)
     if isinstance(batch_size, bool) or not isinstance(batch_size, (int, np.integer)) or batch_size < 1:
         raise ParameterError("batch_size", "an integer >= 1", batch_size)

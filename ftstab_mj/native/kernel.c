@@ -13,6 +13,7 @@
 #include <stdint.h>
 
 #define FT_RMAX 8
+#define FT_MAXLOOPS 8 /* loops of one native run */
 
 enum { FT_NOMINAL = 0, FT_ROBUST = 1, FT_ADAPTIVE = 2 };
 
@@ -208,6 +209,164 @@ void ft_simulate_chain(const ft_law *L, int64_t n, double *z, double *phi_hat, i
         }
     }
 }
+
+/* ---- the control callback of the MuJoCo run loop (ftstab_mj/sim.py, native path) ----------------
+ *
+ * The C twin of Simulation._sample plus the per-step input writes of Simulation.advance, so that a
+ * whole batch runs inside mj_step(m, d, nstep). It never reads the mjData struct: at configure time
+ * Python hands it the addresses of the arrays it uses (they live as long as the MjData) and of
+ * d->time. It is called once per forward pass; the step it belongs to is (time - t0) / h rounded, so a
+ * repeated call at the same time (a stray forward pass) does nothing and a jump of time (MuJoCo
+ * resetting the data after a bad state) stops the batch. One forward pass per step: Euler and
+ * implicitfast (RK4 runs the Python path). */
+
+enum { FT_RUNNING = 0, FT_DIVERGED_Z = 1, FT_BAD_CONTROL = 2, FT_TIME_JUMP = 3 };
+
+typedef struct {
+    /* MjData (addresses taken once) */
+    const double *time;
+    double *ctrl, *qfrc_applied, *userdata;
+    const double *sensordata, *qvel, *xpos, *xquat;
+    void (*mj_forward)(const void *m, void *d); /* non-NULL: refresh sensors before each sample */
+    /* the loops */
+    int32_t n, N, integrating, nbody;
+    const int32_t *sensor_adr;   /* (n, r) indices into sensordata: z[i][j] = sensordata[adr[i*r+j]] */
+    const int32_t *body_ids;     /* (nbody,) */
+    const double *refs;          /* (n,) set points, z_1 = q - ref */
+    const ft_law *laws;          /* (n,) */
+    const double *phi_damping, *phi_mass; /* (n,): recorded phi = inj - damping * qvel[i] / mass */
+    const int32_t *phi_state;    /* (n,) 1 when phi is state dependent (then given by state_phi[i]) */
+    const ft_input *state_phi;   /* (n,) */
+    const double *force_factor;  /* (n,) */
+    double period, h, divergence_limit;
+    /* the batch (arrays (nsteps, n) unless said) */
+    double t0;                   /* time of its first step */
+    int64_t nsteps;
+    const double *t;             /* (nsteps / N,) sample times */
+    double *inj, *force, *ctrl_steps;
+    const double *gain;
+    double *u_held;              /* (n,) */
+    double *rec_t;               /* (samples,) */
+    double *rec_z;               /* (n, samples, r) */
+    double *rec[8];              /* (n, samples) each: u u0 V1 dV1_dzr phi_hat gamma_hat phi gamma */
+    double *body_pos, *body_quat; /* (samples, nbody, 3|4) */
+    int64_t samples;
+    /* progress and outcome (read by Python) */
+    int64_t last_step, row;      /* last step handled (-1 none), last sample recorded (-1 none) */
+    int32_t status, bad_loop;
+    double bad_value, bad_time;
+    int32_t busy;
+} ft_run;
+
+static void run_sample(ft_run *R, const void *m, void *d, int64_t s) {
+    const int n = R->n, N = R->N;
+    const int64_t row = R->row + 1, S = R->samples;
+    const double t = R->t[row];
+    if (R->mj_forward) { /* the sensors of the acceleration stage come after this callback */
+        R->busy = 1;
+        R->mj_forward(m, d);
+        R->busy = 0;
+    }
+    double z[FT_RMAX * FT_MAXLOOPS], zmax = 0.0;
+    int nan = 0;
+    for (int i = 0; i < n; i++) {
+        const int r = R->laws[i].r;
+        for (int j = 0; j < r; j++) {
+            double v = R->sensordata[R->sensor_adr[i * r + j]];
+            if (j == 0) v -= R->refs[i];
+            z[i * FT_RMAX + j] = v;
+            if (!(fabs(v) <= zmax)) { if (v != v) nan = 1; else zmax = fabs(v); }
+        }
+    }
+    if (nan || !(zmax <= R->divergence_limit)) {
+        R->status = FT_DIVERGED_Z;
+        R->bad_value = nan ? NAN : zmax;
+        R->bad_time = t;
+        for (int i = 0; i < n; i++) R->ctrl[i] = 0.0;
+        return;
+    }
+    ft_out o;
+    for (int i = 0; i < n; i++) {
+        const ft_law *L = &R->laws[i];
+        const double ph = R->userdata[i];
+        const double *zi = z + i * FT_RMAX;
+        law_eval(L, zi, ph, &o);
+        if (R->phi_state[i]) { /* worst case: held over the period with this sample's dV1/dz_r */
+            const double value = input_at(&R->state_phi[i], 0, o.dV1_dzr);
+            for (int64_t k = s; k < s + N; k++) {
+                R->inj[k * n + i] = value;
+                R->force[k * n + i] = value * R->force_factor[i];
+            }
+        }
+        if (!isfinite(o.u)) {
+            R->status = FT_BAD_CONTROL;
+            R->bad_loop = i;
+            R->bad_value = o.u;
+            R->bad_time = t;
+            for (int q = 0; q < n; q++) R->ctrl[q] = 0.0;
+            return;
+        }
+        R->u_held[i] = o.u;
+        const int64_t at = i * S + row;
+        for (int j = 0; j < L->r; j++) R->rec_z[at * L->r + j] = zi[j];
+        R->rec[0][at] = o.u; R->rec[1][at] = o.u0; R->rec[2][at] = o.V1; R->rec[3][at] = o.dV1_dzr;
+        R->rec[4][at] = ph; R->rec[5][at] = o.gamma_hat;
+        R->userdata[i] = advance_phi(L, o.V1, ph, R->period);
+    }
+    R->rec_t[row] = t;
+    for (int64_t k = s; k < s + N; k++)
+        for (int i = 0; i < n; i++) R->ctrl_steps[k * n + i] = R->gain[k * n + i] * R->u_held[i];
+    for (int i = 0; i < n; i++) {
+        R->ctrl[i] = R->ctrl_steps[s * n + i];
+        if (!R->integrating) R->qfrc_applied[i] = R->force[s * n + i];
+        const int64_t at = i * S + row;
+        R->rec[6][at] = R->inj[s * n + i] - R->phi_damping[i] * R->qvel[i] / R->phi_mass[i];
+        R->rec[7][at] = R->gain[s * n + i];
+    }
+    for (int b = 0; b < R->nbody; b++) {
+        for (int c = 0; c < 3; c++) R->body_pos[(row * R->nbody + b) * 3 + c] = R->xpos[R->body_ids[b] * 3 + c];
+        for (int c = 0; c < 4; c++) R->body_quat[(row * R->nbody + b) * 4 + c] = R->xquat[R->body_ids[b] * 4 + c];
+    }
+    R->row = row;
+}
+
+static ft_run *ft_active = NULL; /* the run whose batch is stepping (MuJoCo's slot is global too) */
+
+/* The callback installed with mujoco.set_mjcb_control (signature mjfGeneric). */
+void ft_control_callback(const void *m, void *d) {
+    ft_run *R = ft_active;
+    if (R == NULL || R->busy || R->status != FT_RUNNING) return;
+    const int64_t s = llround((*R->time - R->t0) / R->h);
+    if (s == R->last_step) return;           /* a repeated forward pass at the same time */
+    if (s != R->last_step + 1 || s >= R->nsteps) {
+        R->status = FT_TIME_JUMP;
+        R->bad_time = *R->time;
+        return;
+    }
+    const int n = R->n;
+    if (R->integrating && s > 0)             /* the force rate held over the step just done */
+        for (int i = 0; i < n; i++) R->qfrc_applied[i] += R->force[(s - 1) * n + i];
+    R->last_step = s;
+    if (s % R->N == 0) {
+        run_sample(R, m, d, s);
+        return;
+    }
+    for (int i = 0; i < n; i++) {
+        R->ctrl[i] = R->ctrl_steps[s * n + i];
+        if (!R->integrating) R->qfrc_applied[i] = R->force[s * n + i];
+    }
+}
+
+/* Make R the run the callback serves (NULL: none). */
+void ft_run_activate(ft_run *R) { ft_active = R; }
+
+/* After mj_step(nstep) returned: the increment of the last step done (integrating plants). */
+void ft_run_finish(ft_run *R) {
+    if (R->integrating && R->status == FT_RUNNING && R->last_step >= 0)
+        for (int i = 0; i < R->n; i++) R->qfrc_applied[i] += R->force[R->last_step * R->n + i];
+}
+
+int64_t ft_run_size(void) { return (int64_t)sizeof(ft_run); }
 
 int32_t ft_rmax(void) { return FT_RMAX; }
 int64_t ft_law_size(void) { return (int64_t)sizeof(ft_law); }

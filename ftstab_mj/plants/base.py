@@ -126,6 +126,14 @@ class Plant:
         phi_bounds[i] = (lo, hi) and gain factors within gamma_bounds[i]."""
         raise NotImplementedError
 
+    def native_sensing(self, m):
+        """What the native control callback (ftstab_mj/native/run.py) needs to replace :meth:`sense`
+        and :meth:`true_chain`, or None when they are not of this form (the run then uses Python):
+        (adr (n, r) indices into sensordata with z[i, j] = sensordata[adr[i, j]], damping (n,),
+        mass (n,)) such that the recorded phi is phi_inj - damping * qvel[i] / mass and gamma the
+        gain factor. ``m`` may be None (a question about the plant only)."""
+        return None
+
     def sensor_block(self, m, name: str) -> slice:
         """Slice of d.sensordata holding sensor ``name``."""
         i = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SENSOR, name)

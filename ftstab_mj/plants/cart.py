@@ -84,6 +84,11 @@ class CartPlant(Plant):
             return phi_inj.copy(), gain.copy()
         return phi_inj - self.damping * d.qvel[:1] / self.mass, gain.copy()
 
+    def native_sensing(self, m):
+        adr = [self._pos, self._vel] + ([self._acc] if self.integrating else [])
+        damping = 0.0 if self.integrating else self.damping  # as true_chain
+        return np.array([adr]), np.array([damping]), np.array([self.mass])
+
     def true_bounds(self, phi_bounds, gamma_bounds):
         (plo, phi_hi), = phi_bounds
         (glo, ghi), = gamma_bounds

@@ -1,0 +1,187 @@
+"""The native control callback of the MuJoCo run loop (the C twin of sim.Simulation._sample).
+
+:class:`NativeRun` configures ``ft_control_callback`` (kernel.c) for one Simulation: the addresses
+of the MjData arrays it reads and writes, the laws, the plant's sensor map. The run loop then hands
+it each batch's per-step inputs and record arrays and steps the whole batch with
+``mj_step(m, d, nstep)``: no Python runs between two physics steps.
+
+The callback needs the address of ``d->time``, which the Python bindings do not expose; it is
+found once by writing two sentinel times and locating them in the mjData struct (so the C code
+does not depend on the struct's layout). With a plant whose sensors are refreshed before each
+sample (plants/base.py ``refresh_before_sample``), the callback calls MuJoCo's own ``mj_forward``
+(from the libmujoco the bindings loaded), exactly where the Python loop does.
+"""
+
+from __future__ import annotations
+
+import ctypes
+from pathlib import Path
+
+import mujoco
+import numpy as np
+
+from ftstab_mj import native
+from ftstab_mj.native import FtInput, FtLaw, pack_law
+
+MAXLOOPS = 8  # FT_MAXLOOPS in kernel.c
+INTEGRATORS = ("euler", "implicitfast")  # one forward pass (one callback call) per step
+
+_p = ctypes.c_void_p
+_d = ctypes.c_double
+_i32 = ctypes.c_int32
+_i64 = ctypes.c_int64
+
+
+class FtRun(ctypes.Structure):
+    """Mirror of ft_run in kernel.c (same field order and types)."""
+
+    _fields_ = [
+        ("time", _p), ("ctrl", _p), ("qfrc_applied", _p), ("userdata", _p),
+        ("sensordata", _p), ("qvel", _p), ("xpos", _p), ("xquat", _p), ("mj_forward", _p),
+        ("n", _i32), ("N", _i32), ("integrating", _i32), ("nbody", _i32),
+        ("sensor_adr", _p), ("body_ids", _p), ("refs", _p), ("laws", _p), ("phi_damping", _p), ("phi_mass", _p),
+        ("phi_state", _p), ("state_phi", _p), ("force_factor", _p),
+        ("period", _d), ("h", _d), ("divergence_limit", _d),
+        ("t0", _d), ("nsteps", _i64), ("t", _p), ("inj", _p), ("force", _p), ("ctrl_steps", _p), ("gain", _p),
+        ("u_held", _p), ("rec_t", _p), ("rec_z", _p), ("rec", _p * 8), ("body_pos", _p), ("body_quat", _p),
+        ("samples", _i64),
+        ("last_step", _i64), ("row", _i64), ("status", _i32), ("bad_loop", _i32),
+        ("bad_value", _d), ("bad_time", _d), ("busy", _i32),
+    ]
+
+
+def _lib():
+    lib = native.LIB
+    if not hasattr(lib, "_ft_run_ready"):
+        if lib.ft_run_size() != ctypes.sizeof(FtRun):
+            raise native.NativeUnavailable("the C kernel does not match this ftstab_mj version (rebuild it)")
+        for name in ("ft_run_activate", "ft_run_finish"):
+            getattr(lib, name).argtypes = [_p]
+            getattr(lib, name).restype = None
+        lib._ft_run_ready = True
+    return lib
+
+
+def time_address(d: mujoco.MjData) -> int:
+    """Address of d->time: located by writing two distinct sentinel times into it and finding the
+    one aligned offset of the mjData struct that holds both (time comes before the struct's end, and
+    the search reads in small chunks, so it never reads past the struct)."""
+    saved = d.time
+    a, b = 1234.5678901234567, -9876.54321098765
+    try:
+        d.time = a
+        pattern = np.float64(a).tobytes()
+        base, chunk = d._address, 512
+        for start in range(0, 1 << 22, chunk):
+            buf = ctypes.string_at(base + start, chunk + 8)
+            off = buf.find(pattern)
+            while off >= 0 and (start + off) % 8:
+                off = buf.find(pattern, off + 1)
+            if off >= 0:
+                addr = base + start + off
+                d.time = b
+                if ctypes.c_double.from_address(addr).value == b:
+                    return addr
+                d.time = a
+        raise native.NativeUnavailable("cannot locate mjData.time for the native callback")
+    finally:
+        d.time = saved
+
+
+def mj_forward_address() -> int:
+    """Address of mj_forward in the libmujoco the Python bindings use (same file, so same library)."""
+    libs = sorted(Path(mujoco.__file__).parent.glob("libmujoco.so*")) + sorted(
+        Path(mujoco.__file__).parent.glob("libmujoco*.dylib")) + sorted(Path(mujoco.__file__).parent.glob("mujoco.dll"))
+    if not libs:
+        raise native.NativeUnavailable("cannot find the MuJoCo library for the sensor refresh")
+    return ctypes.cast(ctypes.CDLL(str(libs[0])).mj_forward, ctypes.c_void_p).value
+
+
+def unsupported(plant, laws, loops, integrator: str) -> str:
+    """Why the native callback cannot run this simulation ("" when it can)."""
+    if integrator not in INTEGRATORS:
+        return f"the native callback needs one forward pass per step ({' or '.join(INTEGRATORS)}), not {integrator!r}"
+    if len(laws) > MAXLOOPS:
+        return f"the native callback handles at most {MAXLOOPS} loops"
+    if plant.native_sensing(None) is None:
+        return f"plant {plant.model_name!r} has no native sensor map"
+    for L in loops:
+        if L.phi.state_dependent and L.phi.kind != "worst_case":
+            return f"the native callback does not know the state-dependent signal {L.phi.kind!r}"
+    for law in laws:
+        why = native._unsupported(law)
+        if why:
+            return why
+    return ""
+
+
+class NativeRun:
+    """The native control callback of one Simulation (m, d), with its configuration kept alive."""
+
+    def __init__(self, m, d, plant, loops, laws, refs, force_factor, body_ids, period: float, physics_step: float,
+                 N: int, divergence_limit: float):
+        self.lib = _lib()
+        adr, damping, mass = plant.native_sensing(m)
+        n = len(laws)
+        self._keep = keep = {
+            "sensor_adr": np.ascontiguousarray(adr, dtype=np.int32),
+            "body_ids": np.ascontiguousarray(body_ids, dtype=np.int32),
+            "refs": np.ascontiguousarray(refs, dtype=float),
+            "laws": (FtLaw * n)(*(pack_law(law) for law in laws)),
+            "phi_damping": np.ascontiguousarray(damping, dtype=float),
+            "phi_mass": np.ascontiguousarray(mass, dtype=float),
+            "phi_state": np.array([L.phi.state_dependent for L in loops], dtype=np.int32),
+            "state_phi": (FtInput * n)(*(native.chain_input(L.phi, np.zeros((1, 1)))[0] if L.phi.state_dependent
+                                         else FtInput() for L in loops)),
+            "force_factor": np.ascontiguousarray(force_factor, dtype=float),
+            "u_held": np.zeros(n),
+        }
+        R = self.run = FtRun()
+        R.time = time_address(d)
+        for name in ("ctrl", "qfrc_applied", "userdata", "sensordata", "qvel", "xpos", "xquat"):
+            setattr(R, name, getattr(d, name).ctypes.data)
+        R.mj_forward = mj_forward_address() if plant.refresh_before_sample else None
+        R.n, R.N, R.integrating, R.nbody = n, N, int(plant.integrating), len(body_ids)
+        for name, value in keep.items():
+            setattr(R, name, ctypes.addressof(value) if isinstance(value, ctypes.Array) else value.ctypes.data)
+        R.period, R.h, R.divergence_limit = period, physics_step, divergence_limit
+        self.d = d
+        self.callback = self.lib.ft_control_callback  # a ctypes function pointer: set_mjcb_control takes it
+
+    def run_batch(self, m, d, t, inj, gain, force, ctrl_steps, rec_t, rec_z, rec: list, body_pos, body_quat) -> None:
+        """Step len(t) periods with mj_step(nstep) (shapes: t (k,); inj, gain, force, ctrl_steps (k N, n);
+        rec_t (k,); rec_z (n, k, r); rec: 8 arrays (n, k) in kernel order; body_pos (k, nbody, 3),
+        body_quat (k, nbody, 4)). Inputs are the run loop's own arrays, written in place as in Python."""
+        R = self.run
+        arrays = (t, inj, gain, force, ctrl_steps, rec_t, rec_z, *rec, body_pos, body_quat)
+        assert all(a.flags.c_contiguous and a.dtype == np.float64 for a in arrays)
+        R.t0, R.nsteps, R.samples = d.time, len(inj), len(t)
+        R.t, R.inj, R.gain, R.force, R.ctrl_steps = (a.ctypes.data for a in (t, inj, gain, force, ctrl_steps))
+        R.rec_t, R.rec_z, R.body_pos, R.body_quat = (a.ctypes.data for a in (rec_t, rec_z, body_pos, body_quat))
+        for i, a in enumerate(rec):
+            R.rec[i] = a.ctypes.data
+        R.last_step, R.row, R.status = -1, -1, 0
+        self.lib.ft_run_activate(ctypes.byref(R))
+        try:
+            mujoco.mj_step(m, d, nstep=int(R.nsteps))
+            self.lib.ft_run_finish(ctypes.byref(R))
+        finally:
+            self.lib.ft_run_activate(None)
+
+    @property
+    def rows(self) -> int:
+        """Samples recorded by the last batch."""
+        return int(self.run.row) + 1
+
+    def stop_reason(self, loop_names, divergence_limit: float) -> str:
+        """The run loop's message for why the batch stopped early ("" when it did not)."""
+        R = self.run
+        if R.status == 1:
+            return (f"diverged at t = {R.bad_time:.6g} s: max |z| = {R.bad_value:.3g} is beyond the divergence "
+                    f"limit {divergence_limit:g}")
+        if R.status == 2:
+            return f"diverged at t = {R.bad_time:.6g} s: the control of loop {loop_names[R.bad_loop]!r} is {R.bad_value}"
+        if R.status == 3:
+            return f"diverged: the simulation time jumped to {R.bad_time:.6g} s (MuJoCo reset a bad state)"
+        return ""
+
