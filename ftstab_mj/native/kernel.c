@@ -310,7 +310,7 @@ static void run_sample(ft_run *R, const void *m, void *d, int64_t s) {
         const int64_t at = i * S + row;
         for (int j = 0; j < L->r; j++) R->rec_z[at * L->r + j] = zi[j];
         R->rec[0][at] = o.u; R->rec[1][at] = o.u0; R->rec[2][at] = o.V1; R->rec[3][at] = o.dV1_dzr;
-        R->rec[4][at] = ph; R->rec[5][at] = o.gamma_hat;
+        R->rec[4][at] = o.phi_hat; R->rec[5][at] = o.gamma_hat; /* the law's phi_hat, as sim.py logs it */
         R->userdata[i] = advance_phi(L, o.V1, ph, R->period);
     }
     R->rec_t[row] = t;
