@@ -2,14 +2,15 @@
 
 Runs are deterministic (same scenario, same seed, same platform and library versions: identical
 samples), so any difference means the log was altered or the code changed behaviour. Compared:
-every logged field of every loop over the logged samples (a truncated or interrupted log: its
-prefix), the body poses of /tf, and the status of a complete log. Floats are compared by their
+every logged field of every loop over the logged samples (a truncated or interrupted log is a
+prefix: the scenario is re-run for as many samples as it holds), the body poses of /tf, and the status of a complete log. Floats are compared by their
 bits (so -0.0 != 0.0); non-finite values count as equal when both are non-finite (the log stores
 them as null).
 """
 
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass
 
 import numpy as np
@@ -46,13 +47,17 @@ def verify_log(log) -> Verification:
 
     if not log.info.scenario:
         raise LogError(f"{log.path}: no scenario recorded in /scenario, nothing to re-run")
-    rerun = run_scenario_dict(log.info.scenario, sinks=(), source=f"{log.path} /scenario").result
+    finished = log.complete and log.recorded is not None and log.recorded["status"] in (COMPLETED, DIVERGED)
+    scenario = copy.deepcopy(log.info.scenario)
+    if not finished and log.n_samples and isinstance(scenario.get("sim"), dict):
+        # an unfinished log is a prefix: re-run only as far (samples never depend on the duration)
+        scenario["sim"]["duration"] = log.n_samples * log.info.period
+    rerun = run_scenario_dict(scenario, sinks=(), source=f"{log.path} /scenario").result
     n = log.n_samples
     problems, compared = [], 0
     if n > rerun.n_samples:
         problems.append(f"the log has {n} samples, the re-run only {rerun.n_samples} ({rerun.status})")
         n = rerun.n_samples
-    finished = log.complete and log.recorded is not None and log.recorded["status"] in (COMPLETED, DIVERGED)
     if finished:
         if log.n_samples != rerun.n_samples:
             problems.append(f"the log has {log.n_samples} samples, the re-run {rerun.n_samples}")
