@@ -172,3 +172,32 @@ def test_an_unreachable_scheduler_is_one_line_and_leaves_nothing_to_resume(tmp_p
     assert res.stderr.strip().splitlines()[-1].startswith(
         "error: --scheduler: expected a reachable Dask scheduler, could not reach the scheduler at tcp://127.0.0.1:1")
     assert list((tmp_path / "o").iterdir()) == []  # the same command works once the scheduler is up
+
+
+def test_robust_accuracy_scales_as_the_period_to_the_power_1_over_p_r(tmp_path):
+    """The question of robust_accuracy_vs_period.toml, for r = 2 on one decade (1 to 10 ms), 8 s runs.
+
+    With u held over the period h, the discontinuous term keeps z_r in a band of width O(h); Hong's
+    dilation (z_i scales as lambda^p_i, p_i = 1 + (i-1) k) then puts z_1 = x in a band of
+    O(h^(1/p_r)): slope 1/(1 + k) = 1.25 for r = 2, k = -0.2. The full sweep (0.1 to 10 ms, 20 s) gives
+    1.23; the tolerance 0.05 is the width of that bend from the pure power law.
+    """
+    path = tmp_path / "slope.toml"
+    path.write_text(f'''name = "slope"
+description = "r = 2 accuracy against the period"
+scenario = "{ROOT / "scenarios" / "cart_r2_robust.toml"}"
+[set]
+"sim.duration" = 8.0
+[grid]
+"sim.period" = [1e-3, 2e-3, 5e-3, 1e-2]
+[[report.plot]]
+x = "sim.period"
+y = "metrics.loops.cart.final_abs_z_max[0]"
+logx = true
+logy = true
+fit = true
+''')
+    res = run_cli("sweep", path, "--out", tmp_path / "o", "--report")
+    assert res.returncode == 0, res.stderr
+    slope = float(re.search(r"log-log slope in \S+, all runs: (\S+) \(4 points\)", res.stdout).group(1))
+    assert abs(slope - 1 / (1 - 0.2)) < 0.05, slope

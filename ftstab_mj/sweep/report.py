@@ -62,6 +62,7 @@ def plot_one(spec: PlotSpec, table: dict, sweep: Sweep, where: str, path: Path) 
     """Draw one figure to ``path``; return its fits (empty without ``fit``)."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
+    from matplotlib.ticker import NullFormatter
 
     xs, ys = _column(table, spec.x, sweep, key_label(where, "x")), _column(table, spec.y, sweep, key_label(where, "y"))
     by = _column(table, spec.by, sweep, key_label(where, "by")) if spec.by else [None] * len(xs)
@@ -94,6 +95,10 @@ def plot_one(spec: PlotSpec, table: dict, sweep: Sweep, where: str, path: Path) 
         ax.plot(mx, my, "o-", color=color, label=text, markersize=4)
     ax.set_xscale("log" if spec.logx else "linear")
     ax.set_yscale("log" if spec.logy else "linear")
+    grid_x = sorted({xs[i] for i in keep})
+    if spec.logx and 0 < len(grid_x) <= 10:  # a few swept values: label them, not log-axis minor ticks
+        ax.set_xticks(grid_x, [f"{v:g}" for v in grid_x])
+        ax.xaxis.set_minor_formatter(NullFormatter())
     ax.set_xlabel(spec.xlabel or spec.x)
     ax.set_ylabel(spec.ylabel or spec.y)
     ax.set_title(spec.title or f"{sweep.name}", fontsize=9)
