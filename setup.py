@@ -17,7 +17,7 @@ class BuildExt(build_ext):
                 # no errno from pow (lets it be called directly); no fused multiply-add, so the
                 # kernel rounds like the NumPy reference does.
                 ext.extra_compile_args += ["-O2", "-fno-math-errno", "-ffp-contract=off"]
-                ext.libraries += ["m"]
+                ext.libraries += ["m", "pthread"]
         super().build_extensions()
 
 

@@ -62,7 +62,8 @@ def simulate_chain(law, z0, period: float, duration: float, phi: Signal | None =
     held (>= 1). phi defaults to 0 and gamma to 1. A state-dependent phi (worst case) is evaluated
     with the controller's dV1/dz_r of the current sample.
     native: False runs this NumPy loop (the reference); True | "auto" runs the same computation in
-    the C kernel (ftstab_mj.native), which agrees with it to rounding.
+    the C kernel (ftstab_mj.native), which agrees with it to rounding (a large batch is split over
+    the CPUs: native.chain_threads).
     """
     if not (period > 0 and np.isfinite(period)):
         raise ParameterError("period", "a finite number > 0 (s)", period)
@@ -108,6 +109,7 @@ def _simulate_chain_native(law, z, ph, t, period, substeps, Phi, G, phi, gamma) 
     gam_in, gam_table = native_path.chain_input(gamma, t_sub)
     zf = np.ascontiguousarray(z.reshape(-1, r))
     phf = np.ascontiguousarray(ph.reshape(-1))
-    zs, rec = native_path.simulate_chain_kernel(law, zf, phf, n, substeps, period, Phi, G, phi_in, gam_in)
+    zs, rec = native_path.simulate_chain_kernel(law, zf, phf, n, substeps, period, Phi, G, phi_in, gam_in,
+                                                native_path.chain_threads(len(zf)))
     return ChainRun(t=t, z=zs.reshape((n,) + batch + (r,)), z_final=zf.reshape(batch + (r,)),
                     **{k: v.reshape((n,) + batch) for k, v in rec.items()})

@@ -173,3 +173,22 @@ def test_law_the_kernel_cannot_take_falls_back_under_auto():
     assert not native.use_native("auto", law)
     with pytest.raises(native.NativeUnavailable, match="r <= 8"):
         native.use_native(True, law)
+
+
+@needs_kernel
+def test_chain_threads_do_not_change_the_result():
+    """The batch split over threads writes disjoint columns: bit-identical to one thread."""
+    law = AdaptiveLaw(HongController(2, -0.2, (1.0, 2.0)), 1.0, 0.5, 2.0, 0.5, 0.05)
+    z0 = np.random.default_rng(4).uniform(-2.0, 2.0, (37, 2))
+    t_sub = np.arange(200)[:, None] * 1e-2
+    runs = []
+    for threads in (1, 3, 64):
+        phi_in, keep = native.chain_input(Signal("sine", 0.0, 0.4, freq=1.0), t_sub)
+        gam_in, _ = native.chain_input(Signal("worst_case", 1.0, 0.2), t_sub)
+        Phi, G = np.array([[1.0, 1e-2], [0.0, 1.0]]), np.array([0.5e-4, 1e-2])
+        z, ph = z0.copy(), np.zeros(37)
+        zs, rec = native.simulate_chain_kernel(law, z, ph, 200, 1, 1e-2, Phi, G, phi_in, gam_in, threads)
+        runs.append((zs, rec, z, ph))
+    for zs, rec, z, ph in runs[1:]:
+        assert np.array_equal(zs, runs[0][0]) and np.array_equal(z, runs[0][2]) and np.array_equal(ph, runs[0][3])
+        assert all(np.array_equal(rec[k], runs[0][1][k]) for k in rec)

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import ctypes
 import importlib.util
+import os
 import sys
 
 import numpy as np
@@ -66,7 +67,7 @@ def _find_library() -> tuple[ctypes.CDLL | None, str]:
     lib.ft_advance_phi_hat.argtypes = [p, ctypes.c_int64, p, p, ctypes.c_double, p]
     lib.ft_advance_phi_hat.restype = None
     lib.ft_simulate_chain.argtypes = [p, ctypes.c_int64, p, p, ctypes.c_int64, ctypes.c_int32, ctypes.c_double,
-                                      p, p, p, p, p, p]
+                                      p, p, p, p, p, p, ctypes.c_int32]
     lib.ft_simulate_chain.restype = None
     return lib, ""
 
@@ -173,12 +174,23 @@ def chain_input(signal, t_sub: np.ndarray) -> tuple[FtInput, np.ndarray | None]:
     return FtInput(values.ctypes.data_as(_dbl), 0.0, 0.0), values
 
 
+def chain_threads(n_traj: int) -> int:
+    """Threads for a batch of n_traj trajectories: the CPUs this process may use, one per 64
+    trajectories at most (a thread costs ~50 us to start). The result does not depend on it."""
+    try:
+        cpus = len(os.sched_getaffinity(0))
+    except AttributeError:  # not Linux
+        cpus = os.cpu_count() or 1
+    return max(1, min(cpus, n_traj // 64))
+
+
 def simulate_chain_kernel(law, z: np.ndarray, phi_hat: np.ndarray, nsteps: int, substeps: int, period: float,
-                          Phi: np.ndarray, G: np.ndarray, phi_in: FtInput, gam_in: FtInput):
+                          Phi: np.ndarray, G: np.ndarray, phi_in: FtInput, gam_in: FtInput, threads: int = 1):
     """Run the ideal chain in C (see ideal_chain.simulate_chain, which prepares the arguments).
 
     z (n, r) and phi_hat (n,) are advanced in place to the final state. Returns (zs (nsteps, n, r),
     {field: (nsteps, n)}) for the fields u, u0, V1, dV1_dzr, phi_hat, gamma_hat, phi, gamma.
+    threads: trajectories are split over that many threads (POSIX; the result is the same).
     """
     lib = _require()
     n, r = z.shape
@@ -189,5 +201,5 @@ def simulate_chain_kernel(law, z: np.ndarray, phi_hat: np.ndarray, nsteps: int, 
     p = pack_law(law)
     Phi, G = np.ascontiguousarray(Phi, dtype=float), np.ascontiguousarray(G, dtype=float)
     lib.ft_simulate_chain(ctypes.byref(p), n, _c(z), _c(phi_hat), nsteps, substeps, float(period), _c(Phi),
-                          _c(G), ctypes.byref(phi_in), ctypes.byref(gam_in), _c(zs), ptrs)
+                          _c(G), ctypes.byref(phi_in), ctypes.byref(gam_in), _c(zs), ptrs, int(threads))
     return zs, rec

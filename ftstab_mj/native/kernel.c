@@ -11,6 +11,10 @@
 #include <math.h>
 #include <stddef.h>
 #include <stdint.h>
+#if defined(__unix__) || defined(__APPLE__)
+#define FT_THREADS 1
+#include <pthread.h>
+#endif
 
 #define FT_RMAX 8
 #define FT_MAXLOOPS 8 /* loops of one native run */
@@ -175,39 +179,85 @@ static inline double input_at(const ft_input *in, int64_t idx, double dV) {
     return dV > 0.0 ? in->if_pos : (dV < 0.0 ? in->if_neg : (dV == 0.0 ? in->if_zero : dV));
 }
 
-/* The ideal chain (ideal_chain.py simulate_chain) for n trajectories over nsteps control periods.
+/* The ideal chain (ideal_chain.py simulate_chain) for trajectories j0..j1-1 of n over nsteps periods.
  * z: (n, r) initial states, overwritten by the final states; phi_hat: (n,) likewise.
  * Phi (r, r), G (r,): transition over one sub-step. Records, one row per period (nsteps, n, ...):
  * zs (nsteps, n, r) and rec[f] (nsteps, n) for f in u, u0, V1, dV1_dzr, phi_hat, gamma_hat, phi, gamma.
  * Time-major loops, so that the records are written sequentially. */
-void ft_simulate_chain(const ft_law *L, int64_t n, double *z, double *phi_hat, int64_t nsteps,
-                       int32_t substeps, double period, const double *Phi, const double *G,
-                       const ft_input *phi_in, const ft_input *gam_in, double *zs, double *const rec[8]) {
+typedef struct {
+    const ft_law *L;
+    int64_t n, j0, j1, nsteps;
+    double *z, *phi_hat;
+    int32_t substeps;
+    double period;
+    const double *Phi, *G;
+    const ft_input *phi_in, *gam_in;
+    double *zs;
+    double *const *rec;
+} chain_job;
+
+static void *chain_run(void *arg) {
+    const chain_job *J = (const chain_job *)arg;
+    const ft_law *L = J->L;
     const int r = L->r;
+    const int64_t n = J->n;
     ft_out o;
-    for (int64_t k = 0; k < nsteps; k++) {
-        for (int64_t j = 0; j < n; j++) {
-            double *x = z + j * r, y[FT_RMAX];
-            law_eval(L, x, phi_hat[j], &o);
+    for (int64_t k = 0; k < J->nsteps; k++) {
+        for (int64_t j = J->j0; j < J->j1; j++) {
+            double *x = J->z + j * r, y[FT_RMAX];
+            law_eval(L, x, J->phi_hat[j], &o);
             const int64_t row = k * n + j;
-            for (int i = 0; i < r; i++) zs[row * r + i] = x[i];
-            rec[0][row] = o.u; rec[1][row] = o.u0; rec[2][row] = o.V1; rec[3][row] = o.dV1_dzr;
-            rec[4][row] = o.phi_hat; rec[5][row] = o.gamma_hat;
-            for (int s = 0; s < substeps; s++) {
-                const int64_t idx = k * substeps + s;
-                const double wp = input_at(phi_in, idx, o.dV1_dzr), wg = input_at(gam_in, idx, o.dV1_dzr);
-                if (s == 0) { rec[6][row] = wp; rec[7][row] = wg; }
+            for (int i = 0; i < r; i++) J->zs[row * r + i] = x[i];
+            J->rec[0][row] = o.u; J->rec[1][row] = o.u0; J->rec[2][row] = o.V1; J->rec[3][row] = o.dV1_dzr;
+            J->rec[4][row] = o.phi_hat; J->rec[5][row] = o.gamma_hat;
+            for (int s = 0; s < J->substeps; s++) {
+                const int64_t idx = k * J->substeps + s;
+                const double wp = input_at(J->phi_in, idx, o.dV1_dzr), wg = input_at(J->gam_in, idx, o.dV1_dzr);
+                if (s == 0) { J->rec[6][row] = wp; J->rec[7][row] = wg; }
                 const double w = wp + wg * o.u;
                 for (int i = 0; i < r; i++) {
                     double acc = 0.0;
-                    for (int c = i; c < r; c++) acc += x[c] * Phi[i * r + c];
-                    y[i] = acc + w * G[i];
+                    for (int c = i; c < r; c++) acc += x[c] * J->Phi[i * r + c];
+                    y[i] = acc + w * J->G[i];
                 }
                 for (int i = 0; i < r; i++) x[i] = y[i];
             }
-            phi_hat[j] = advance_phi(L, o.V1, phi_hat[j], period);
+            J->phi_hat[j] = advance_phi(L, o.V1, J->phi_hat[j], J->period);
         }
     }
+    return NULL;
+}
+
+#define FT_MAXTHREADS 64
+
+/* Trajectories are independent: with threads > 1 (POSIX) they are split into that many slices
+ * run in parallel; each thread writes its own columns of the records, so the result does not
+ * depend on the number of threads. */
+void ft_simulate_chain(const ft_law *L, int64_t n, double *z, double *phi_hat, int64_t nsteps,
+                       int32_t substeps, double period, const double *Phi, const double *G,
+                       const ft_input *phi_in, const ft_input *gam_in, double *zs, double *const rec[8],
+                       int32_t threads) {
+    chain_job jobs[FT_MAXTHREADS];
+    if (threads < 1) threads = 1;
+    if (threads > FT_MAXTHREADS) threads = FT_MAXTHREADS;
+    if (threads > n) threads = (int32_t)(n > 0 ? n : 1);
+    for (int t = 0; t < threads; t++) {
+        chain_job J = {L, n, n * t / threads, n * (t + 1) / threads, nsteps, z, phi_hat, substeps, period,
+                       Phi, G, phi_in, gam_in, zs, rec};
+        jobs[t] = J;
+    }
+#ifdef FT_THREADS
+    pthread_t tid[FT_MAXTHREADS];
+    int started[FT_MAXTHREADS] = {0};
+    for (int t = 1; t < threads; t++) started[t] = pthread_create(&tid[t], NULL, chain_run, &jobs[t]) == 0;
+    chain_run(&jobs[0]);
+    for (int t = 1; t < threads; t++) {
+        if (started[t]) pthread_join(tid[t], NULL);
+        else chain_run(&jobs[t]); /* could not start a thread: do its share here */
+    }
+#else
+    for (int t = 0; t < threads; t++) chain_run(&jobs[t]);
+#endif
 }
 
 /* ---- the control callback of the MuJoCo run loop (ftstab_mj/sim.py, native path) ----------------
@@ -227,7 +277,9 @@ typedef struct {
     const double *time;
     double *ctrl, *qfrc_applied, *userdata;
     const double *sensordata, *qvel, *xpos, *xquat;
-    void (*mj_forward)(const void *m, void *d); /* non-NULL: refresh sensors before each sample */
+    /* non-NULL: refresh the sensors before each sample with mj_forwardSkip(m, d, skip_stage, 0) */
+    void (*mj_forward_skip)(const void *m, void *d, int skipstage, int skipsensor);
+    int32_t skip_stage;
     /* the loops */
     int32_t n, N, integrating, nbody;
     const int32_t *sensor_adr;   /* (n, r) indices into sensordata: z[i][j] = sensordata[adr[i*r+j]] */
@@ -262,9 +314,13 @@ static void run_sample(ft_run *R, const void *m, void *d, int64_t s) {
     const int n = R->n, N = R->N;
     const int64_t row = R->row + 1, S = R->samples;
     const double t = R->t[row];
-    if (R->mj_forward) { /* the sensors of the acceleration stage come after this callback */
+    if (R->mj_forward_skip) {
+        /* The sensors of the acceleration stage are computed after this callback: run the stages
+         * after velocity once more, with the control still held from the last step, as the Python
+         * loop's mj_forward before the step does (position and velocity stages: this pass's, the
+         * same state, so they need not be recomputed). */
         R->busy = 1;
-        R->mj_forward(m, d);
+        R->mj_forward_skip(m, d, R->skip_stage, 0);
         R->busy = 0;
     }
     double z[FT_RMAX * FT_MAXLOOPS], zmax = 0.0;
