@@ -51,6 +51,13 @@ CLAIMS = {
     # settles (V1 < 1e-3) at 3.35 s, final |x| 6.4e-5
     "cart_r3_adaptive": (None, lambda m: m["cart"]["settle_time"] <= 4.0 and _x_final(m["cart"]) < 1e-4
                          and _theorem3_held(m["cart"])),
+    # settles at 1.878 / 1.868 s (T(z0) 5.97 / 5.71 s), final |q - ref| 2.0e-3 / 4.5e-4 rad
+    "arm_robust": (4.0, lambda m: all(m[j]["settle_time"] <= 2.5 and m[j]["beat_bound"] and _x_final(m[j]) < 3e-3
+                                      for j in ("joint0", "joint1"))),
+    # V1 enters eps at 1.655 / 1.45 s, then stays below 5.9e-3 / 4.6e-3; final |q - ref| 0.031 / 3.3e-4 rad (6 s)
+    "arm_adaptive": (6.0, lambda m: all(m[j]["eps_entry_time"] <= 2.0 and m[j]["V1_max_after_entry"] < 1e-2
+                                        and _x_final(m[j]) < 0.05 and _theorem3_held(m[j])
+                                        for j in ("joint0", "joint1"))),
 }
 
 

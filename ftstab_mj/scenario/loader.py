@@ -30,7 +30,8 @@ from ftstab_mj.control import HongController
 from ftstab_mj.disturbances import Signal
 from ftstab_mj.errors import ParameterError, ScenarioError
 from ftstab_mj.scenario.schema import (
-    EXTERNAL_CHECKS, SIGNAL_DERIVED, ControllerSpec, LoopSpec, PlantSpec, Scenario, period_is_multiple,
+    COMPUTED, EXTERNAL_CHECKS, ROBUST_PARAMS, SIGNAL_DERIVED, ControllerSpec, LoopSpec, PlantSpec, Scenario,
+    period_is_multiple,
 )
 
 _SIGNAL_ROLES = {"disturbance": 1, "gain": 2}
@@ -102,9 +103,11 @@ class _Reader:
                 raise self.error(path, "a table", describe(value))
             return dict(value)
         origin, args = typing.get_origin(tp), typing.get_args(tp)
-        if origin in (typing.Union, types.UnionType):  # X | None
-            (inner,) = [a for a in args if a is not type(None)]
-            return self.convert(inner, value, path)
+        if origin in (typing.Union, types.UnionType):  # X | None, float | str | None
+            inner = [a for a in args if a is not type(None)]
+            if isinstance(value, str) and str in inner:
+                return value
+            return self.convert(inner[0], value, path)
         if origin is tuple and len(args) == 2 and args[1] is Ellipsis:
             if not isinstance(value, list) or not value:
                 raise self.error(path, "a non-empty array of numbers", describe(value))
@@ -216,14 +219,14 @@ def _check(sc: Scenario, rd: _Reader) -> Scenario:
             name = exc.name.split(" ")[0]  # "gains[1] (l_2)" -> "gains[1]"
             raise rd.error(f"{p}.controller.{name}", exc.allowed, describe(exc.given)) from None
         _check_law_params(c, f"{p}.controller", rd)
-        lo = lp.gain.bounds()[0] if not lp.gain.state_dependent else lp.gain.offset - lp.gain.amplitude
+        lo = lp.gain.bounds()[0]
         if lo <= 0:
             raise rd.error(f"{p}.gain", "gamma(t) > 0 at all times (offset > amplitude)",
                            f"a signal reaching {lo:g}")
         seeds = {role: _derived_seed(sc.seed, lp.name, role) for role in _SIGNAL_ROLES}
         loops.append(replace(lp, disturbance=replace(lp.disturbance, seed=seeds["disturbance"]),
                              gain=replace(lp.gain, seed=seeds["gain"])))
-    return replace(sc, loops=tuple(loops))
+    return _computed_bounds(replace(sc, loops=tuple(loops)), plant)
 
 
 def _check_plant(sc: Scenario, rd: _Reader):
@@ -242,6 +245,24 @@ def _check_plant(sc: Scenario, rd: _Reader):
     return plant
 
 
+def _computed_bounds(sc: Scenario, plant) -> Scenario:
+    """Replace robust bounds given as "computed" by the plant's bounds for the scenario's signals."""
+    wanted = [(i, name) for i, lp in enumerate(sc.loops) for name in ROBUST_PARAMS
+              if lp.controller.law == "robust" and getattr(lp.controller, name) == COMPUTED]
+    if not wanted:
+        return sc
+    by_name = {lp.name: lp for lp in sc.loops}
+    ordered = [by_name[n] for n in plant.loop_names]  # true_bounds takes the plant's loop order
+    phibar, gamma_m, _ = plant.true_bounds([lp.disturbance.bounds() for lp in ordered],
+                                           [lp.gain.bounds() for lp in ordered])
+    value = {(n, "phibar"): float(phibar[k]) for k, n in enumerate(plant.loop_names)}
+    value.update({(n, "gamma_m"): float(gamma_m[k]) for k, n in enumerate(plant.loop_names)})
+    loops = list(sc.loops)
+    for i, name in wanted:
+        loops[i] = replace(loops[i], controller=replace(loops[i].controller, **{name: value[(loops[i].name, name)]}))
+    return replace(sc, loops=tuple(loops))
+
+
 def _check_law_params(c: ControllerSpec, path: str, rd: _Reader) -> None:
     wanted = set(c.law_params())
     for f in fields(ControllerSpec):
@@ -254,7 +275,7 @@ def _check_law_params(c: ControllerSpec, path: str, rd: _Reader) -> None:
         if f.name not in wanted and value is not None:
             need = ", ".join(sorted(wanted)) or "no law parameter"
             raise rd.error(f"{path}.{f.name}", f"only the {c.law} law's parameters ({need})",
-                           f"{f.name} = {value:g}, a parameter of another law")
+                           f"{f.name} = {value!r}, a parameter of another law")
 
 
 def _derived_seed(seed: int, loop: str, role: str) -> int:

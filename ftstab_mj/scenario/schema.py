@@ -8,12 +8,14 @@ A scenario file (``scenarios/*.toml``) maps onto :class:`Scenario`::
     [metrics]                          -> records.MetricSettings
     [loops.<name>]                     -> LoopSpec    (one per actuated joint of the plant)
     [loops.<name>.controller]          -> ControllerSpec
-    [loops.<name>.disturbance]         -> disturbances.Signal (phi(t), chain units)
-    [loops.<name>.gain]                -> disturbances.Signal (gamma(t), chain units)
+    [loops.<name>.disturbance]         -> disturbances.Signal (the injected disturbance)
+    [loops.<name>.gain]                -> disturbances.Signal (the actuator gain factor)
 
 Chain units (NOTES.md section 7): for a loop of chain length r, z = (z_1, ..., z_r) are the
 position error (m or rad) and its r - 1 derivatives; phi is in m/s^r (rad/s^r) and gamma in
-(m/s^r) per unit of control. Each field's metadata holds ``doc`` (what, with units) and an
+(m/s^r) per unit of control. The signals are in the plant's units (ftstab_mj.plants): for the cart
+they are phi and gamma in chain units; for the arm a torque (N m) and a dimensionless gain factor,
+which the arm's inertia turns into its phi and gamma. Each field's metadata holds ``doc`` (what, with units) and an
 optional ``check`` (value -> None when fine, else a text saying what is allowed) used by the loader.
 """
 
@@ -63,6 +65,18 @@ def one_line(v):
     return None if v.strip() and "\n" not in v else "one non-empty line"
 
 
+COMPUTED = "computed"
+
+
+def bound(check):
+    """A robust bound: a number passing ``check``, or the word "computed"."""
+    def check_bound(v):
+        if isinstance(v, str):
+            return None if v == COMPUTED else f'a number or "{COMPUTED}"'
+        return check(v)
+    return check_bound
+
+
 def meta(doc, check=None):
     return {"doc": doc, "check": check}
 
@@ -94,7 +108,8 @@ class SimSpec:
 class ControllerSpec:
     """One loop's control law (NOTES.md sections 2-6). Hong's part: form, k, gains; then the law's own.
 
-    robust needs phibar, gamma_m (the bounds it assumes); adaptive needs kappa, delta, rate, eta, eps;
+    robust needs phibar, gamma_m (the bounds it assumes, or "computed" to take the plant's bounds: the
+    loader replaces the word by the numbers); adaptive needs kappa, delta, rate, eta, eps;
     nominal needs none. A parameter of another law is an error, not silently ignored.
     """
 
@@ -102,10 +117,12 @@ class ControllerSpec:
     k: float = field(metadata=meta("homogeneity degree, -1/r < k <= 0 (full form)"))
     gains: tuple[float, ...] = field(metadata=meta("Hong's gains l_1..l_r > 0 (Hurwitz nested polynomial)"))
     form: str = field(default="full", metadata=meta("Hong's controller form", one_of("full", "simplified")))
-    phibar: float | None = field(default=None, metadata=meta(
-        "robust: assumed bound on |phi| (chain units, m/s^r)", non_negative))
-    gamma_m: float | None = field(default=None, metadata=meta(
-        "robust: assumed lower bound on gamma (chain units)", positive))
+    # robust bounds: a number, or "computed": the plant's bound for this scenario's signals
+    # (Plant.true_bounds: the cart from the signal ranges, the arm from its model over its workspace)
+    phibar: float | str | None = field(default=None, metadata=meta(
+        "robust: assumed bound on |phi| (chain units, m/s^r or rad/s^2), or \"computed\"", bound(non_negative)))
+    gamma_m: float | str | None = field(default=None, metadata=meta(
+        "robust: assumed lower bound on gamma (chain units), or \"computed\"", bound(positive)))
     kappa: float | None = field(default=None, metadata=meta("adaptive: gamma_hat = kappa + delta |u0|", positive))
     delta: float | None = field(default=None, metadata=meta("adaptive: gamma_hat = kappa + delta |u0|", positive))
     rate: float | None = field(default=None, metadata=meta(
@@ -129,9 +146,9 @@ class LoopSpec:
     z0: tuple[float, ...] = field(metadata=meta("initial state z_1..z_r (chain units: m or rad, then derivatives)"))
     controller: ControllerSpec = field(metadata=meta("the control law"))
     disturbance: Signal = field(default=Signal("constant", 0.0), metadata=meta(
-        "phi(t), injected disturbance in chain units (m/s^r); default none"))
+        "injected disturbance (cart: phi in m/s^r; arm: torque in N m); default none"))
     gain: Signal = field(default=Signal("constant", 1.0), metadata=meta(
-        "gamma(t), actuator gain in chain units; default 1 (no uncertainty)"))
+        "actuator gain factor (cart: gamma in chain units; arm: dimensionless); default 1"))
     ref: float = field(default=0.0, metadata=meta("set point of the joint position (m or rad): z_1 = q - ref"))
 
 
