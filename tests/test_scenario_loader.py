@@ -111,3 +111,21 @@ def test_period_error_quotes_both_numbers(tmp_path):
     proc = run_cli("run", ROBUST, "--out", tmp_path / "out", "--set", "sim.period=0.0015")
     assert proc.returncode == 2
     assert "0.001 s" in proc.stderr and "0.0015 s" in proc.stderr
+
+
+def test_computed_bounds_are_the_plants_bounds_for_the_scenarios_signals():
+    """phibar = gamma_m = "computed" resolves, at load time, to Plant.true_bounds of the loops' signals:
+    the cart's from the signal ranges (|phi| <= 0.8, gamma >= 0.6), the arm's from its model."""
+    from ftstab_mj.plants import make_plant
+
+    sc = load_scenario(ROBUST, ['loops.cart.controller.phibar="computed"', "loops.cart.controller.gamma_m=computed"])
+    (lp,) = sc.loops
+    assert (lp.controller.phibar, lp.controller.gamma_m) == pytest.approx((0.8, 0.6), rel=1e-12)
+    arm = load_scenario(ROOT / "scenarios" / "arm_robust.toml")
+    plant = make_plant("arm")
+    phibar, gamma_m, _ = plant.true_bounds([lp.disturbance.bounds() for lp in arm.loops],
+                                           [lp.gain.bounds() for lp in arm.loops])
+    assert [lp.controller.phibar for lp in arm.loops] == list(phibar)
+    assert [lp.controller.gamma_m for lp in arm.loops] == list(gamma_m)
+    # the resolved scenario (what a log records) holds the numbers
+    assert scenario_to_dict(arm)["loops"]["joint0"]["controller"]["phibar"] == phibar[0]
