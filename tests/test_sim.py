@@ -191,3 +191,13 @@ def test_advance_refuses_to_run_without_its_callback():
     sim = Simulation(make_plant("cart"), _cart_loops(), period=0.01, physics_step=0.001)
     with pytest.raises(RuntimeError, match="callback installed"):
         sim.advance(1)
+
+
+def test_a_mujoco_warning_stops_the_run_as_diverged(tmp_path, monkeypatch):
+    """A force so large that qacc exceeds MuJoCo's limit: MuJoCo warns (and resets the data); the
+    run stops at the next sample with the warning named, keeping the samples before it."""
+    monkeypatch.chdir(tmp_path)  # MuJoCo appends its warnings to ./MUJOCO_LOG.TXT
+    loops = [LoopSpec("cart", ROBUST2, phi=Signal("step", amplitude=1e12, t_step=0.05), z0=(1.0, 0.0))]
+    res = simulate(make_plant("cart"), loops, duration=1.0, period=0.01, physics_step=0.001, divergence_limit=1e300)
+    assert res.status == DIVERGED and "mjWARN_BADQACC" in res.message
+    assert res.n_samples == 6  # samples at t = 0 .. 0.05; the step at 0.05 blows up within that period

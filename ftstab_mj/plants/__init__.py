@@ -6,8 +6,14 @@ Models (files in models/):
   "cart"              r = 2, one loop "cart"  (params: mass, friction, damping)
   "cart_integrating"  r = 3, one loop "cart"  (params: mass, friction, damping, sensor_refresh)
   "arm"               r = 2, loops "joint0", "joint1": two stacked hinge joints in a vertical plane
-                      (params: link_lengths, link_masses, friction, damping; the workspace of the
-                      bounds: q_min, q_max, qd_max, u_max, grid)
+                      (params: link_lengths, link_masses, armature, friction, damping; the
+                      workspace of the bounds: q_min, q_max, qd_max, u_max, grid)
+
+Signal units differ: the carts take phi and gamma in chain units, the arm takes phi as an injected
+joint torque (N m) and gamma as a motor gain factor (plant.phi_units / plant.gamma_units say it).
+Bounds in chain units for given signal ranges: plant.true_bounds(phi_bounds, gamma_bounds) ->
+(phibar, gamma_m, gamma_M), arrays over the loops; for the arm they hold inside its workspace,
+which plant.outside_workspace(samples, refs) checks after a run.
 
 An unknown model or parameter raises ParameterError naming it. See base.py for how the run loop
 drives a plant (inputs, sensing, userdata) and each module for its physics and units.

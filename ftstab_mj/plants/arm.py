@@ -105,6 +105,8 @@ class ArmPlant(Plant):
         self.r = 2
         self.dist_scale = np.ones(N_LINKS)
         self.body_names = ("link0", "link1")
+        self.phi_units = "N m (injected joint torque)"
+        self.gamma_units = "motor gain factor (dimensionless, nominal 1; chain gamma = factor x (M^-1)_ii)"
         m, _, _ = self.compile(0.001)
         self._pos = np.array([self.sensor_block(m, f"q{i}").start for i in range(N_LINKS)])
         self._vel = np.array([self.sensor_block(m, f"qd{i}").start for i in range(N_LINKS)])
@@ -128,6 +130,24 @@ class ArmPlant(Plant):
         acc = Minv @ (phi_inj + tau + d.qfrc_passive[:N_LINKS] - d.qfrc_bias[:N_LINKS])
         gamma = gain * np.diag(Minv)
         return acc - gamma * u, gamma
+
+    def outside_workspace(self, loops: dict, refs: dict) -> str:
+        """What left the workspace of the bounds (q range, |q'|, |u|), or "" when nothing did.
+        loops: {loop: {field: array}} samples; refs: {loop: set point (rad)}."""
+        out = []
+        for i, name in enumerate(self.loop_names):
+            s = loops[name]
+            if not len(s["t"]):
+                continue
+            q = s["z"][:, 0] + refs[name]
+            qd, u = np.abs(s["z"][:, 1]).max(), np.abs(s["u"]).max()
+            if q.min() < self.q_min[i] or q.max() > self.q_max[i]:
+                out.append(f"{name}: q spanned [{q.min():.3g}, {q.max():.3g}], outside [{self.q_min[i]:g}, {self.q_max[i]:g}] rad")
+            if qd > self.qd_max[i]:
+                out.append(f"{name}: |q'| reached {qd:.3g} > qd_max {self.qd_max[i]:g} rad/s")
+            if u > self.u_max[i]:
+                out.append(f"{name}: |u| reached {u:.3g} > u_max {self.u_max[i]:g} N m")
+        return "; ".join(out)
 
     def true_bounds(self, phi_bounds, gamma_bounds):
         D = np.array([max(abs(lo), abs(hi)) for lo, hi in phi_bounds])

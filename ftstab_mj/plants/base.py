@@ -74,6 +74,8 @@ class Plant:
         callback in MuJoCo's forward pass (acceleration stage): the run loop then calls mj_forward
         once before each control sample so that the sensor is not one physics step old.
       body_names: bodies whose poses are recorded (world excluded).
+      phi_units, gamma_units: what the LoopSpec's phi and gamma signals mean for this plant
+        (chain units for the carts; a joint torque and a motor gain factor for the arm).
     """
 
     model_name: str
@@ -84,6 +86,8 @@ class Plant:
     integrating: bool = False
     refresh_before_sample: bool = False
     body_names: tuple[str, ...] = ()
+    phi_units: str = ""
+    gamma_units: str = ""
 
     def __init__(self, spec: mujoco.MjSpec):
         self._spec = spec
@@ -133,6 +137,11 @@ class Plant:
         mass (n,)) such that the recorded phi is phi_inj - damping * qvel[i] / mass and gamma the
         gain factor. ``m`` may be None (a question about the plant only)."""
         return None
+
+    def outside_workspace(self, loops: dict, refs: dict) -> str:
+        """"" when the samples ({loop: {field: array}}, set points refs {loop: ref}) stayed where the
+        plant's true bounds hold, else what left it. The carts' bounds hold everywhere: ""."""
+        return ""
 
     def sensor_block(self, m, name: str) -> slice:
         """Slice of d.sensordata holding sensor ``name``."""

@@ -61,6 +61,9 @@ class CartPlant(Plant):
         self.refresh_before_sample = integrating and refresh
         self.dist_scale = np.array([mass])
         self.body_names = ("cart",)
+        self.phi_units = "m/s^3 (injected force rate / mass)" if integrating else "m/s^2 (injected force / mass)"
+        self.gamma_units = ("m/s^3 per unit u (actuator force rate / mass)" if integrating
+                            else "m/s^2 per unit u (actuator force / mass)")
         m, _, _ = self.compile(0.001)
         self._pos = self.sensor_block(m, "x").start
         self._vel = self.sensor_block(m, "xdot").start
