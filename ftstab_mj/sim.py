@@ -262,8 +262,10 @@ class Simulation:
                                    self._rec_z, [self._rec_scalars[f] for f in _SCALARS], self._pos, self._quat)
             self._row = self._native.rows - 1
             self.stop_reason = self._native.stop_reason([L.name for L in self.loops], self.divergence_limit)
-        if not self.stop_reason and self._warning_count() != warn0:
-            self.stop_reason = f"diverged before t = {d.time:.6g} s: MuJoCo reported a bad state ({self._warning_text()})"
+        if self._warning_count() != warn0:  # the root cause; MuJoCo also reset the data (and d.time)
+            t_last = self._t[self._row] if self._row >= 0 else self._t[0] - self.period
+            self.stop_reason = (f"diverged after the sample at t = {t_last:.6g} s: MuJoCo reported a bad state "
+                                f"({self._warning_text()}) and reset the simulation")
         return self.take_batch()
 
     def _step_batch(self, n_samples: int, warn0: int) -> None:

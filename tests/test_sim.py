@@ -193,11 +193,14 @@ def test_advance_refuses_to_run_without_its_callback():
         sim.advance(1)
 
 
-def test_a_mujoco_warning_stops_the_run_as_diverged(tmp_path, monkeypatch):
+@pytest.mark.parametrize("native", [False, "auto"])
+def test_a_mujoco_warning_stops_the_run_as_diverged(tmp_path, monkeypatch, native):
     """A force so large that qacc exceeds MuJoCo's limit: MuJoCo warns (and resets the data); the
     run stops at the next sample with the warning named, keeping the samples before it."""
     monkeypatch.chdir(tmp_path)  # MuJoCo appends its warnings to ./MUJOCO_LOG.TXT
     loops = [LoopSpec("cart", ROBUST2, phi=Signal("step", amplitude=1e12, t_step=0.05), z0=(1.0, 0.0))]
-    res = simulate(make_plant("cart"), loops, duration=1.0, period=0.01, physics_step=0.001, divergence_limit=1e300)
-    assert res.status == DIVERGED and "mjWARN_BADQACC" in res.message
+    res = simulate(make_plant("cart"), loops, duration=1.0, period=0.01, physics_step=0.001, divergence_limit=1e300,
+                   native=native)
+    assert res.status == DIVERGED
+    assert "after the sample at t = 0.05 s: MuJoCo reported a bad state (mjWARN_BADQACC x1)" in res.message
     assert res.n_samples == 6  # samples at t = 0 .. 0.05; the step at 0.05 blows up within that period
