@@ -73,10 +73,10 @@ def test_shipped_adaptive_vs_amplitude_sweep_end_to_end(tmp_path):
                   "--format", "csv", "--report")
     assert res.returncode == 0, res.stderr
     t = read_table(out / "adaptive_vs_amplitude.csv")
-    assert t["status"] == ["completed"] * 24
+    assert t["status"] == ["completed"] * 72
     amps = t["loops.cart.disturbance.amplitude"]
     assert min(amps) == 0.25 and max(amps) == 8.0 and len(set(amps)) == 6
-    assert len(set(t["loops.cart.disturbance.freq"])) == 4  # 4 draws, the same at every amplitude
+    assert len(set(t["loops.cart.disturbance.freq"])) == 12  # 12 draws, the same at every amplitude
     assert all(v is not None and v >= 0 for v in t["metrics.loops.cart.phi_hat_max"])
     assert len(list((out / "report").glob("*.png"))) == 4
 
