@@ -1,0 +1,20 @@
+"""benchmarks/speed.py runs (shortened) and prints its table: no timing is asserted (speed lives in
+the benchmark, not in the tests), only that the script the README shows works."""
+
+import subprocess
+import sys
+
+import pytest
+
+from ftstab_mj import native
+from conftest import ROOT
+
+
+@pytest.mark.skipif(not native.available(), reason=f"native kernel: {native.UNAVAILABLE_REASON}")
+def test_speed_benchmark_prints_every_ratio():
+    out = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "speed.py"), "--repeat", "1", "--steps", "2000"],
+                         capture_output=True, text=True, timeout=300, cwd=ROOT)
+    assert out.returncode == 0, out.stderr
+    for row in ("callback robust r=2", "callback adaptive r=3", "full run, MCAP + Rerun",
+                "whole `ftstab run` process", "ideal chain r=2, 1000 initial states"):
+        assert row in out.stdout, out.stdout
