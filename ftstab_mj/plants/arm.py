@@ -44,7 +44,7 @@ import mujoco
 import numpy as np
 
 from ftstab_mj.errors import ParameterError
-from ftstab_mj.plants.base import Plant, check_keys, load_spec, number
+from ftstab_mj.plants.base import Plant, check_keys, load_spec
 
 N_LINKS = 2
 DEFAULTS = {"link_lengths": [0.5, 0.4], "link_masses": [1.0, 0.5], "armature": [0.2, 0.1], "friction": 0.0, "damping": 0.0,
@@ -95,10 +95,9 @@ class ArmPlant(Plant):
         spec.site("tip").pos = [0, 0, lengths[1]]
         super().__init__(spec)
         self.model_name = model_name
-        self.params = {"link_lengths": list(lengths), "link_masses": list(masses),
-                       "armature": list(armature), "friction": list(friction),
-                       "damping": list(damping), "q_min": list(q_min), "q_max": list(q_max),
-                       "qd_max": list(qd_max), "u_max": list(u_max), "grid": int(grid)}
+        self.params = {"link_lengths": lengths.tolist(), "link_masses": masses.tolist(), "armature": armature.tolist(),
+                       "friction": friction.tolist(), "damping": damping.tolist(), "q_min": q_min.tolist(),
+                       "q_max": q_max.tolist(), "qd_max": qd_max.tolist(), "u_max": u_max.tolist(), "grid": int(grid)}
         self.friction, self.q_min, self.q_max, self.qd_max, self.u_max = friction, q_min, q_max, qd_max, u_max
         self.grid = int(grid)
         self.loop_names = tuple(f"joint{i}" for i in range(N_LINKS))
