@@ -205,12 +205,14 @@ def cmd_run(args) -> int:
 
 
 def _workers(text: str) -> int:
+    if text == "all":
+        return os.cpu_count() or 1
     try:
         n = int(text)
     except ValueError:
         n = 0
     if n < 1:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {text!r}")
+        raise argparse.ArgumentTypeError(f"expected an integer >= 1 or 'all' (every core), got {text!r}")
     return n
 
 
@@ -326,7 +328,8 @@ def build_parser() -> argparse.ArgumentParser:
         epilog="example: ftstab sweep scenarios/sweeps/robust_accuracy_vs_period.toml --workers 2 --report")
     w.add_argument("sweep", help="sweep file (.toml)")
     w.add_argument("--workers", type=_workers, default=1, metavar="N",
-                   help="parallel runs (default 1: serial); N > 1 starts a local Dask cluster of N processes")
+                   help="parallel runs (default 1: serial; 'all': one per core); N > 1 starts a local Dask "
+                        "cluster of N processes")
     w.add_argument("--engine", choices=("serial", "processes", "dask"),
                    help="serial, processes (a local process pool) or dask (default: dask when N > 1 or --scheduler)")
     w.add_argument("--scheduler", metavar="ADDRESS",
