@@ -140,6 +140,9 @@ def test_interrupted_sweep_resumes_without_rerunning_finished_rows(tmp_path):
     assert f"{done} done earlier, {12 - done} to run" in res.stderr
     assert f"{12 - done} ran now" in res.stdout
     resumed = read_table(out / "small.parquet")
+    again = run_cli("sweep", sweep, "--out", out, "--resume", "--workers", "2")  # finished: no engine, no run
+    assert again.returncode == 0 and "0 ran now" in again.stdout and "0 to run" in again.stderr
+    assert read_table(out / "small.parquet") == resumed
     assert {k: v[:done] for k, v in resumed.items()} == partial  # finished rows kept as they were, elapsed_s too
     reference = run_cli("sweep", sweep, "--out", tmp_path / "ref")
     assert reference.returncode == 0

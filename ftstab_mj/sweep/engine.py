@@ -46,6 +46,8 @@ def execute(items: Iterable[tuple[int, tuple]], task: Callable[[int, tuple], dic
             workers: int = 1, scheduler: str | None = None) -> Iterator[tuple[int, dict | None]]:
     """Run ``task`` on every (index, params); yield (index, result or None if lost) as runs finish."""
     items = list(items)
+    if not items:  # nothing to run (e.g. resuming a finished sweep): start no engine
+        return
     if engine == "serial":
         for i, params in items:
             yield i, guarded(task, i, params)
