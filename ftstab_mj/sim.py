@@ -258,9 +258,11 @@ class Simulation:
         if self._native is None:
             self._step_batch(n_samples, warn0)
         else:  # the same work, in C, inside one mj_step(nstep) call
-            self._native.run_batch(m, d, self._t, self._inj, self._gain, self._force, self._ctrl, self._rec_t,
-                                   self._rec_z, [self._rec_scalars[f] for f in _SCALARS], self._pos, self._quat)
-            self._row = self._native.rows - 1
+            try:
+                self._native.run_batch(m, d, self._t, self._inj, self._gain, self._force, self._ctrl, self._rec_t,
+                                       self._rec_z, [self._rec_scalars[f] for f in _SCALARS], self._pos, self._quat)
+            finally:  # a Ctrl-C comes out right after mj_step: keep what the batch recorded
+                self._row = self._native.rows - 1
             self.stop_reason = self._native.stop_reason([L.name for L in self.loops], self.divergence_limit)
         if self._warning_count() != warn0:  # the root cause; MuJoCo also reset the data (and d.time)
             t_last = self._t[self._row] if self._row >= 0 else self._t[0] - self.period

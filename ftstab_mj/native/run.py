@@ -166,8 +166,8 @@ class NativeRun:
         self.lib.ft_run_activate(ctypes.byref(R))
         try:
             mujoco.mj_step(m, d, nstep=int(R.nsteps))
+        finally:  # also on Ctrl-C (raised right after mj_step): the last step's force increment is applied
             self.lib.ft_run_finish(ctypes.byref(R))
-        finally:
             self.lib.ft_run_activate(None)
 
     @property
