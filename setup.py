@@ -4,8 +4,14 @@ The extension is optional: when no C compiler works, setuptools warns and the in
 without it, and ftstab_mj runs the pure NumPy controller (and says so once).
 """
 
+import shutil
+from pathlib import Path
+
 from setuptools import Extension, setup
 from setuptools.command.build_ext import build_ext
+from setuptools.command.build_py import build_py
+
+ROOT = Path(__file__).resolve().parent
 
 
 class BuildExt(build_ext):
@@ -21,7 +27,19 @@ class BuildExt(build_ext):
         super().build_extensions()
 
 
+class BuildPyWithData(build_py):
+    """Copies models/ and scenarios/ into the built package (ftstab_mj/_data/), so that a wheel
+    (plain `pip install .`) carries them; ftstab_mj.resources finds either copy."""
+
+    def run(self):
+        super().run()
+        for name in ("models", "scenarios"):
+            target = Path(self.build_lib) / "ftstab_mj" / "_data" / name
+            shutil.rmtree(target, ignore_errors=True)
+            shutil.copytree(ROOT / name, target, ignore=shutil.ignore_patterns("__pycache__"))
+
+
 setup(
     ext_modules=[Extension("ftstab_mj.native._kernel", ["ftstab_mj/native/kernel.c"], optional=True)],
-    cmdclass={"build_ext": BuildExt},
+    cmdclass={"build_ext": BuildExt, "build_py": BuildPyWithData},
 )

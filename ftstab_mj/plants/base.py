@@ -20,15 +20,14 @@ simulation state (``mjSTATE_INTEGRATION`` includes it): see :data:`USERDATA_SLOT
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import mujoco
 import numpy as np
 
 from ftstab_mj.callback import control_callback
 from ftstab_mj.errors import ParameterError
+from ftstab_mj.resources import data_dir
 
-MODELS_DIR = Path(__file__).resolve().parents[2] / "models"
+MODELS_DIR = data_dir("models")
 
 # userdata layout (n = number of loops): phi_hat of each loop, the only controller state that
 # outlives a control period (everything else is recomputed at each sample).

@@ -5,7 +5,9 @@ from __future__ import annotations
 import tomllib
 from pathlib import Path
 
-SCENARIO_DIR = Path(__file__).resolve().parents[2] / "scenarios"
+from ftstab_mj.resources import data_dir
+
+SCENARIO_DIR = data_dir("scenarios")
 
 
 def shipped_scenarios() -> list[tuple[str, Path, str]]:
