@@ -45,11 +45,15 @@ static inline double np_sign(double a) {
     return a > 0.0 ? 1.0 : (a < 0.0 ? -1.0 : (a == 0.0 ? 0.0 : a));
 }
 
-/* |a|^p without calling pow where the result is exact anyway: 0^p = 0 (p > 0) and x^1 = x
- * (the full form's first exponent is exactly 1). */
+/* |a|^p, without pow where NumPy does without it too (its power has fast paths for these
+ * exponents): 0^p = 0 (p > 0), x^1 = x (the full form's first exponent), x^0.5 = sqrt(x) and
+ * x^2 = x x (the adaptive law with eta = 0.5, the default, in advance_phi: 4x cheaper). */
 static inline double abs_pow(double a, double p) {
     double m = fabs(a);
-    return (m == 0.0 || p == 1.0) ? m : pow(m, p);
+    if (m == 0.0 || p == 1.0) return m;
+    if (p == 0.5) return sqrt(m);
+    if (p == 2.0) return m * m;
+    return pow(m, p);
 }
 
 /* np.maximum (NaN propagates, unlike fmax). */

@@ -10,7 +10,7 @@ found once by writing two sentinel times and locating them in the mjData struct 
 does not depend on the struct's layout). With a plant whose sensors are refreshed before each
 sample (plants/base.py ``refresh_before_sample``), the callback calls MuJoCo's own
 ``mj_forwardSkip`` (from the libmujoco the bindings loaded) for the stages after velocity: the
-same sensor values as the Python loop's mj_forward before the step, for about half its cost.
+same sensor values as the Python loop's mj_forward before the step, without redoing the position and velocity stages.
 """
 
 from __future__ import annotations
