@@ -170,6 +170,8 @@ def pin_loop(m: dict, period: float, rate: float | None) -> dict:
     phi_hat (adaptive, rate = the adaptation rate): grows at most at ``rate`` per second, so a timing
     shift of TIMING_PERIODS periods moves it by at most TIMING_PERIODS * period * rate.
     """
+    if not m["n_samples"]:  # a run that failed before its first sample has no other metric
+        return {"law": m["law"], "n_samples": 0}
     dt = TIMING_PERIODS * period
     out = {
         "law": m["law"], "n_samples": m["n_samples"], "z0": m["z0"],

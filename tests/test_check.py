@@ -93,3 +93,14 @@ def test_pin_then_check_same_log_passes_and_another_run_fails(tmp_path):
     assert "settle_time = { " in text and "atol = 0.004" in text  # two periods of 2 ms
     assert main(["check", str(logs[1.0]), "--expect", str(pinned)]) == 0
     assert main(["check", str(logs[1.2]), "--expect", str(pinned)]) == 1
+
+
+def test_pin_of_a_run_without_samples_pins_only_its_count():
+    from ftstab_mj.expectations import pin_expectations
+
+    info, loops, _, _ = synthetic_run("nominal", duration=0.1, with_model=False)
+    empty = {k: {f: a[:0] for f, a in v.items()} for k, v in loops.items()}
+    m = compute_metrics(info, empty, "failed")
+    pinned = pin_expectations(m, info)
+    assert pinned == {"status": "failed", "n_samples": 0, "loops": {"cart": {"law": "nominal", "n_samples": 0}}}
+    assert all(o.ok for o in check_metrics(m, pinned))
