@@ -87,7 +87,7 @@ def test_same_table_serially_on_two_processes_and_on_two_dask_workers(tmp_path):
 
     sweep = small_sweep(tmp_path)
     tables = {}
-    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0") as cluster:
         for name, args in (("serial", ("--logs",)), ("processes", ("--engine", "processes", "--workers", "2")),
                            ("dask", ("--scheduler", cluster.scheduler_address))):
             res = run_cli("sweep", sweep, "--out", tmp_path / name, *args)

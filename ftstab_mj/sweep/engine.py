@@ -84,8 +84,10 @@ def _dask(items, task, workers, scheduler) -> Iterator[tuple[int, dict | None]]:
         if scheduler:
             client = Client(scheduler, timeout="10s")
         else:
+            # dashboard_address ":0": its HTTP server on a free port (None would still take 8787, and
+            # warn when another cluster holds it)
             cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                                   dashboard_address=None, silence_logs=logging.ERROR)
+                                   dashboard_address=":0", silence_logs=logging.ERROR)
             client = Client(cluster)
     except (OSError, TimeoutError) as exc:
         if cluster is not None:
