@@ -1,6 +1,7 @@
 """Shared fixtures. The autouse fixture enforces that global MuJoCo state is put back."""
 
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -39,3 +40,13 @@ def run_cli(*args, cwd=None, timeout=600):
     env["PYTHONPATH"] = str(ROOT) + os.pathsep + env.get("PYTHONPATH", "")
     return subprocess.run([sys.executable, "-m", "ftstab_mj", *map(str, args)], capture_output=True,
                           text=True, cwd=cwd or ROOT, env=env, timeout=timeout)
+
+
+def rrd_rows(path, entity: str) -> int:
+    """Rows logged to ``entity`` in an .rrd, read with Rerun's own decoder (``rerun rrd print``,
+    the one the viewer uses), which reads a file cut by SIGKILL as far as it goes. The Python
+    RrdReader refuses any file whose last frame is cut (measured: 0 rows at every cut offset)."""
+    printed = subprocess.run([str(Path(sys.executable).parent / "rerun"), "rrd", "print", str(path)],
+                             capture_output=True, text=True, timeout=120)
+    assert printed.returncode == 0, printed.stderr[-1000:]
+    return sum(int(n) for n in re.findall(rf"with (\d+) rows .* - {re.escape(entity)} -", printed.stdout))
