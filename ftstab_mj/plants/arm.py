@@ -39,6 +39,7 @@ a run can check that from its records (q, q', u).
 from __future__ import annotations
 
 import itertools
+import json
 
 import mujoco
 import numpy as np
@@ -49,6 +50,12 @@ from ftstab_mj.plants.base import Plant, check_keys, load_spec
 N_LINKS = 2
 DEFAULTS = {"link_lengths": [0.5, 0.4], "link_masses": [1.0, 0.5], "armature": [0.2, 0.1], "friction": 0.0, "damping": 0.0,
             "q_min": [-0.3, -0.8], "q_max": [0.9, 0.6], "qd_max": [2.0, 3.0], "u_max": [15.0, 5.0], "grid": 41}
+
+
+# Workspace tables of the bounds, by the plant's normalized params (JSON): they take ~0.7 s and
+# depend on nothing else, and a scenario run builds the plant twice (the loader validates and
+# computes "computed" bounds, the runner simulates).
+_WORKSPACE_TABLES: dict[str, tuple] = {}
 
 
 def _vector(params, key, positive=False, nonneg=False) -> np.ndarray:
@@ -110,7 +117,6 @@ class ArmPlant(Plant):
         self._pos = np.array([self.sensor_block(m, f"q{i}").start for i in range(N_LINKS)])
         self._vel = np.array([self.sensor_block(m, f"qd{i}").start for i in range(N_LINKS)])
         self._M = np.empty((N_LINKS, N_LINKS))
-        self._tables = None  # workspace tables of the bounds, computed on first use
 
     def set_initial(self, m, d, q0, z0):
         d.qpos[:N_LINKS] = q0
@@ -163,9 +169,11 @@ class ArmPlant(Plant):
 
     def _workspace_tables(self):
         """Over the q grid (Gq points): min/max over q of diag(M^-1) (n,) each, max over q' of
-        |[M^-1 f(q, q')]_i| (Gq, n) and |M^-1(q)| (Gq, n, n). Cached."""
-        if self._tables is not None:
-            return self._tables
+        |[M^-1 f(q, q')]_i| (Gq, n) and |M^-1(q)| (Gq, n, n). Cached by parameters (see
+        _WORKSPACE_TABLES)."""
+        key = json.dumps(self.params, sort_keys=True)
+        if key in _WORKSPACE_TABLES:
+            return _WORKSPACE_TABLES[key]
         n, G = N_LINKS, self.grid
         m, d, _ = self.compile(0.001)  # a private MjData: fwdPosition/fwdVelocity never call the control callback
         axes = [np.linspace(self.q_min[i], self.q_max[i], G) for i in range(n)]
@@ -202,8 +210,10 @@ class ArmPlant(Plant):
                                                   self.qd_max)
             diag[k] = np.diag(Minv)
             coupling[k] = np.abs(Minv)
-        self._tables = (diag.min(axis=0), diag.max(axis=0), f_part, coupling)
-        return self._tables
+        if len(_WORKSPACE_TABLES) >= 32:  # a sweep over arm parameters: keep the cache small
+            _WORKSPACE_TABLES.clear()
+        _WORKSPACE_TABLES[key] = (diag.min(axis=0), diag.max(axis=0), f_part, coupling)
+        return _WORKSPACE_TABLES[key]
 
 
 def _max_abs_quadratic(c: float, b: np.ndarray, A: np.ndarray, half_widths: np.ndarray) -> float:
