@@ -25,8 +25,9 @@ def results(table: dict) -> dict:
     return {k: v for k, v in table.items() if k not in VARYING_COLUMNS}
 
 
-def small_sweep(tmp_path, duration=0.3) -> str:
-    """12 runs of the r = 2 robust cart; sim.period = 1.5 ms is not a multiple of the 1 ms physics step."""
+def small_sweep(tmp_path, duration=0.3, physics_step=1e-3, periods="1e-3, 1.5e-3, 2e-3") -> str:
+    """4 runs per period of the r = 2 robust cart; by default sim.period = 1.5 ms is not a multiple of
+    the 1 ms physics step (a failing combination)."""
     path = tmp_path / "small.toml"
     path.write_text(f'''name = "small"
 description = "engines, failures and resume on real runs"
@@ -35,8 +36,9 @@ seed = 3
 samples = 2
 [set]
 "sim.duration" = {duration}
+"sim.physics_step" = {physics_step}
 [grid]
-"sim.period" = [1e-3, 1.5e-3, 2e-3]
+"sim.period" = [{periods}]
 "loops.cart.disturbance.amplitude" = [0.4, 0.8]
 [draw]
 "loops.cart.z0[0]" = {{uniform = [-1.0, 1.0]}}
@@ -116,29 +118,31 @@ def test_same_table_serially_on_two_processes_and_on_two_dask_workers(tmp_path):
 
 
 def test_interrupted_sweep_resumes_without_rerunning_finished_rows(tmp_path):
-    sweep = small_sweep(tmp_path, duration=1.5)
+    # 8 runs of 200,000 physics steps (~0.3 s each): Ctrl-C lands while the 4th runs
+    sweep = small_sweep(tmp_path, duration=20.0, physics_step=1e-4, periods="1e-3, 2e-3")
     out = tmp_path / "o"
-    proc = subprocess.Popen([sys.executable, "-m", "ftstab_mj", "sweep", sweep, "--out", str(out)], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen([sys.executable, "-m", "ftstab_mj", "sweep", sweep, "--out", str(out)], cwd=ROOT,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     journal = out / "small.jsonl"
     deadline = time.monotonic() + 120
     while time.monotonic() < deadline and proc.poll() is None:
         if journal.exists() and journal.read_text().count("\n") >= 3:
             break
-        time.sleep(0.05)
+        time.sleep(0.01)
     proc.send_signal(signal.SIGINT)  # Ctrl-C
     stdout, stderr = proc.communicate(timeout=120)
     assert proc.returncode == 130, stderr
     assert "--resume runs the others" in stderr
     partial = read_table(out / "small.parquet")
     done = len(partial["row"])
-    assert 3 <= done < 12 and partial["row"] == list(range(done))  # serial: the first rows, all finished
+    assert 3 <= done < 8 and partial["row"] == list(range(done))  # serial: the first rows, all finished
     res = run_cli("sweep", sweep, "--out", out)  # without --resume: refused, nothing overwritten
     assert res.returncode == 2 and "expected an output directory without this sweep (or --resume" in res.stderr
     assert res.stderr.count("\n") == 1
     res = run_cli("sweep", sweep, "--out", out, "--resume")
     assert res.returncode == 0, res.stderr
-    assert f"{done} done earlier, {12 - done} to run" in res.stderr
-    assert f"{12 - done} ran now" in res.stdout
+    assert f"{done} done earlier, {8 - done} to run" in res.stderr
+    assert f"{8 - done} ran now" in res.stdout
     resumed = read_table(out / "small.parquet")
     again = run_cli("sweep", sweep, "--out", out, "--resume", "--workers", "2")  # finished: no engine, no run
     assert again.returncode == 0 and "0 ran now" in again.stdout and "0 to run" in again.stderr
