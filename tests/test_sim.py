@@ -193,6 +193,20 @@ def test_advance_refuses_to_run_without_its_callback():
         sim.advance(1)
 
 
+def test_advance_accepts_the_float_drift_of_long_runs_and_refuses_mid_period_calls():
+    """d.time is a running sum of steps: after 369,000 steps of 1e-4 s it read 36.900000000101 (a
+    sweep row failed with 'advance called between samples'). A drifted sample instant is still a
+    sample instant; a step boundary inside a period is not."""
+    sim = Simulation(make_plant("cart"), _cart_loops(), period=1e-3, physics_step=1e-4)
+    with sim.installed():
+        sim.data.time = 36.900000000101
+        batch = sim.advance(2)
+        assert batch.loops["cart"]["t"].tolist() == [36.9, 36.901]  # sample times from the index, not the drift
+        sim.data.time = 36.9003  # three steps into a period
+        with pytest.raises(RuntimeError, match="between samples"):
+            sim.advance(1)
+
+
 @pytest.mark.parametrize("native", [False, "auto"])
 def test_a_mujoco_warning_stops_the_run_as_diverged(tmp_path, monkeypatch, native):
     """A force so large that qacc exceeds MuJoCo's limit: MuJoCo warns (and resets the data); the
