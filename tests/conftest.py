@@ -2,6 +2,7 @@
 
 import os
 import re
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -32,6 +33,24 @@ def no_control_callback_left_installed():
     after = mujoco.get_mjcb_control()
     mujoco.set_mjcb_control(before)  # put it back so one failure does not cascade
     assert after is before, f"a test left a MuJoCo control callback installed: {after!r}"
+
+
+def _sigint_default():
+    # A suite started in the background (non-interactive shell, `cmd &`) runs with SIGINT ignored,
+    # the children inherit that, and Python then installs no KeyboardInterrupt handler: a Ctrl-C
+    # test would wait for a run that cannot be interrupted. Give the child what a terminal gives.
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
+def start_cli(*args, cwd=None, **popen_kwargs):
+    """Start ``python -m ftstab_mj ARGS`` in the background as a user's shell would (SIGINT at its
+    default, so Ctrl-C tests work whatever started the suite). Returns the Popen."""
+    env = dict(os.environ)
+    env["PYTHONPATH"] = str(ROOT) + os.pathsep + env.get("PYTHONPATH", "")
+    popen_kwargs.setdefault("stdout", subprocess.PIPE)
+    popen_kwargs.setdefault("stderr", subprocess.PIPE)
+    return subprocess.Popen([sys.executable, "-m", "ftstab_mj", *map(str, args)], cwd=cwd or ROOT, env=env,
+                            text=True, preexec_fn=_sigint_default, **popen_kwargs)
 
 
 def run_cli(*args, cwd=None, timeout=600):

@@ -2,14 +2,11 @@
 
 import io
 import json
-import os
 import signal
-import subprocess
-import sys
 import time
 
 import numpy as np
-from conftest import ROOT, run_cli
+from conftest import run_cli, start_cli
 
 from ftstab_mj.logs.reader import read_log
 from ftstab_mj.records import SampleBatch
@@ -56,10 +53,7 @@ def test_diverged_run_exits_1_and_its_log_says_so(tmp_path):
 
 def test_ctrl_c_exits_130_and_leaves_a_complete_log_saying_interrupted(tmp_path):
     """SIGINT while running: the run loop stops at the current sample, the sinks are finalized."""
-    cmd = [sys.executable, "-m", "ftstab_mj", "run", "cart_r2_robust", "--out", str(tmp_path),
-           "--set", "sim.duration=3600"]
-    proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            env={**os.environ, "PYTHONPATH": str(ROOT)})
+    proc = start_cli("run", "cart_r2_robust", "--out", tmp_path, "--set", "sim.duration=3600")
     log = tmp_path / "cart_r2_robust.mcap"
     deadline = time.monotonic() + 120
     while (not log.exists() or log.stat().st_size < 200_000) and time.monotonic() < deadline:

@@ -2,13 +2,11 @@
 
 import re
 import signal
-import subprocess
-import sys
 import time
 
 import pytest
 
-from conftest import ROOT, run_cli
+from conftest import ROOT, run_cli, start_cli
 from ftstab_mj.logs.reader import read_log
 from ftstab_mj.metrics import compute_metrics
 from ftstab_mj.scenario import load_scenario
@@ -121,11 +119,7 @@ def test_interrupted_sweep_resumes_without_rerunning_finished_rows(tmp_path):
     # 8 runs of 200,000 physics steps (~0.3 s each): Ctrl-C lands while the 4th runs
     sweep = small_sweep(tmp_path, duration=20.0, physics_step=1e-4, periods="1e-3, 2e-3")
     out = tmp_path / "o"
-    # SIGINT back to its default in the child: a test run started in the background (SIGINT ignored,
-    # inherited) would otherwise give a sweep that cannot be interrupted
-    proc = subprocess.Popen([sys.executable, "-m", "ftstab_mj", "sweep", sweep, "--out", str(out)], cwd=ROOT,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    proc = start_cli("sweep", sweep, "--out", out)  # SIGINT at its default in the child (see start_cli)
     journal = out / "small.jsonl"
     deadline = time.monotonic() + 120
     while time.monotonic() < deadline and proc.poll() is None:
