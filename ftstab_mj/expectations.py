@@ -20,10 +20,10 @@ Example::
 from __future__ import annotations
 
 import math
-import tomllib
 from dataclasses import dataclass
 
 from ftstab_mj.errors import ScenarioError
+from ftstab_mj.tomlfile import read_toml
 
 SPEC_KEYS = ("value", "atol", "rtol", "min", "max", "null")
 
@@ -43,14 +43,7 @@ class Outcome:
 
 def load_expectations(path) -> dict:
     """Parse an expectation file (TOML). Raises ExpectationError naming the file on bad syntax."""
-    path = str(path)
-    try:
-        with open(path, "rb") as f:
-            return tomllib.load(f)
-    except OSError as exc:
-        raise ExpectationError(path, "<file>", "a readable TOML file", exc.strerror) from None
-    except tomllib.TOMLDecodeError as exc:
-        raise ExpectationError(path, "<file>", "valid TOML", str(exc)) from None
+    return read_toml(path, "expectation file (.toml)", ExpectationError)
 
 
 def _is_number(x) -> bool:

@@ -71,7 +71,7 @@ def test_check_cli_exit_codes_and_diff(tmp_path):
     assert "2 of 2 expectations" in lines[0]
     assert lines[1].startswith("  loops.cart.settle_time: expected") and "off by -0.1" in lines[1]
     assert lines[2].startswith("  loops.cart.effort_abs: expected max 0") and "above max by" in lines[2]
-    for text, where in (("[loops.cart]\nsettle = 1\n", "loops.cart.settle"), ("x = [", "<file>")):
+    for text, where in (("[loops.cart]\nsettle = 1\n", "loops.cart.settle"), ("x = [", "(TOML syntax)")):
         broken = tmp_path / "broken.toml"
         broken.write_text(text)
         res = run_cli("check", log, "--expect", broken)

@@ -22,7 +22,6 @@ import types
 import typing
 import zlib
 from dataclasses import MISSING, fields, is_dataclass, replace
-from pathlib import Path
 
 import numpy as np
 
@@ -33,6 +32,7 @@ from ftstab_mj.scenario.schema import (
     COMPUTED, EXTERNAL_CHECKS, ROBUST_PARAMS, SIGNAL_DERIVED, ControllerSpec, LoopSpec, PlantSpec, Scenario,
     period_is_multiple,
 )
+from ftstab_mj.tomlfile import read_toml
 
 _SIGNAL_ROLES = {"disturbance": 1, "gain": 2}
 
@@ -341,16 +341,7 @@ def apply_override(raw: dict, text: str, source: str) -> str:
 def load_scenario(path, overrides=()) -> Scenario:
     """Read, override and validate a scenario file. Raises ScenarioError (one line) on any problem."""
     src = str(path)
-    p = Path(path)
-    if not p.is_file():
-        raise ScenarioError(src, "(file)", "an existing scenario file (.toml)",
-                            "a directory" if p.is_dir() else "no such file")
-    try:
-        raw = tomllib.loads(p.read_text(encoding="utf-8"))
-    except UnicodeDecodeError as exc:
-        raise ScenarioError(src, "(file)", "UTF-8 text", f"undecodable bytes ({exc.reason})") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise ScenarioError(src, "(TOML syntax)", "valid TOML", str(exc)) from None
+    raw = read_toml(path, "scenario file (.toml)")
     where = {}
     for text in overrides:
         where[apply_override(raw, text, src)] = text

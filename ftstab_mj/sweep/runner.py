@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import copy
 import json
-import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -20,6 +19,7 @@ from ftstab_mj.scenario import apply_override, scenario_from_dict, scenario_to_d
 from ftstab_mj.scenario.loader import parse_override
 from ftstab_mj.sweep.expand import draw_value, grid_values
 from ftstab_mj.sweep.spec import Sweep, key_label
+from ftstab_mj.tomlfile import read_toml
 
 
 def toml_literal(value) -> str:
@@ -108,10 +108,7 @@ def prepare(sweep: Sweep, overrides=(), logs_dir=None) -> tuple[ScenarioTask, di
     key path is in the resolved base or is a key the schema knows (a typo would fail every run).
     """
     src = str(sweep.scenario)
-    try:
-        raw = tomllib.loads(sweep.scenario.read_text(encoding="utf-8"))
-    except (UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
-        raise ScenarioError(src, "(file)", "a TOML scenario file", str(exc)) from None
+    raw = read_toml(sweep.scenario, "scenario file (.toml)")
     where = {}
     for text in [override_text(p, v) for p, v in sweep.set] + list(overrides):
         where[apply_override(raw, text, src)] = text

@@ -43,13 +43,13 @@ from __future__ import annotations
 
 import math
 import os
-import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
 from ftstab_mj.errors import ScenarioError, SweepError
 from ftstab_mj.scenario.loader import describe, parse_override
 from ftstab_mj.scenario.schema import identifier, one_line
+from ftstab_mj.tomlfile import read_toml
 
 COMBINE = ("product", "zip")
 GRID_KINDS = ("range", "linspace", "logspace")  # besides a plain list of values
@@ -319,14 +319,5 @@ def load_sweep(path) -> Sweep:
     Expansion checks that need the values (zip lengths, key paths absent from the base scenario)
     are made by :func:`ftstab_mj.sweep.expand.expand`.
     """
-    src = str(path)
-    p = Path(path)
-    if not p.is_file():
-        raise SweepError(src, "(file)", "an existing sweep file (.toml)", "a directory" if p.is_dir() else "no such file")
-    try:
-        raw = tomllib.loads(p.read_text(encoding="utf-8"))
-    except UnicodeDecodeError as exc:
-        raise SweepError(src, "(file)", "UTF-8 text", f"undecodable bytes ({exc.reason})") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise SweepError(src, "(TOML syntax)", "valid TOML", str(exc)) from None
-    return _Reader(src).sweep(raw, p.parent)
+    raw = read_toml(path, "sweep file (.toml)", SweepError)
+    return _Reader(str(path)).sweep(raw, Path(path).parent)
