@@ -178,8 +178,15 @@ def cmd_run(args) -> int:
     from ftstab_mj.logs import McapSink, RerunSink
     from ftstab_mj.metrics import format_table
 
-    out.mkdir(parents=True, exist_ok=True)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise UsageError(f"--out {args.out}: expected a directory the logs can be written in, found {exc.strerror}") from None
     paths = (out / f"{sc.name}.mcap", out / f"{sc.name}.rrd")
+    for path in paths:  # both checked before either is opened: bad input leaves no log behind
+        if path.is_dir() or (path.exists() and not os.access(path, os.W_OK)):
+            raise UsageError(f"--out {args.out}: expected {path.name} to be a writable file, found "
+                             + ("a directory" if path.is_dir() else "a read-only file"))
     say = (lambda *a, **k: None) if args.json else print  # --json: stdout carries the JSON only
     say(f"{sc.name}: {sc.description}")
     say(f"  plant {sc.plant.model}, {len(sc.loops)} loop(s) ({', '.join(lp.controller.law for lp in sc.loops)}),"

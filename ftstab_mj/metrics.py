@@ -59,6 +59,12 @@ def settle_time(t, V1, level):
     return None if last == len(t) - 1 else float(t[last + 1])
 
 
+def _is_finite_number(x) -> bool:
+    """True for a finite number; False for inf and for None (an infinite bound after JSON, where
+    it is written as null)."""
+    return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
+
+
 def bound_applies(loop) -> bool:
     """Whether Theorem 1's time bound T(z0) is a guarantee for this loop (chain units).
 
@@ -66,6 +72,8 @@ def bound_applies(loop) -> bool:
     are within the assumed ones (true_phibar <= phibar, true_gamma_m >= gamma_m); adaptive: never
     (Theorem 3 gives ultimate bounds, not a convergence time).
     """
+    if not _is_finite_number(loop.true_phibar):
+        return False  # the plant's disturbance has no bound (e.g. a damped cart): nothing is guaranteed
     if loop.law == "nominal":
         return loop.true_phibar == 0.0 and loop.true_gamma_m == 1.0 and loop.true_gamma_M == 1.0
     if loop.law == "robust":
@@ -129,15 +137,17 @@ def theorem3_check(loop, V1_final, phi_hat_final):
     from ftstab_mj.control import theorem3_bounds
 
     cert = loop_certificate(loop)
-    if loop.law != "adaptive" or not cert.certified:
-        return None
+    if loop.law != "adaptive" or not cert.certified or not _is_finite_number(loop.true_phibar):
+        return None  # (an unbounded plant, e.g. a damped cart, gives Theorem 3 nothing to check)
     p = loop.law_params
     b = theorem3_bounds(cert, loop.true_phibar, loop.true_gamma_m, p["kappa"], p["delta"], p["rate"], p["eps"])
     v_max, ph_max, v_min = float(np.max(V1_final)), float(np.max(phi_hat_final)), float(np.min(V1_final))
     return {
         "Phibar": _num(b.Phibar), "Delta": _num(b.Delta), "phi_hat_limsup": _num(b.phi_hat_limsup),
         "V1_max_final": _num(v_max), "Delta_held": bool(v_max <= b.Delta),
-        "phi_hat_max_final": _num(ph_max), "phi_hat_bound_held": bool(ph_max <= b.phi_hat_limsup),
+        "phi_hat_max_final": _num(ph_max),
+        # None at k = 0, where Theorem 3 gives no finite bound (see theorem3_bounds)
+        "phi_hat_bound_held": bool(ph_max <= b.phi_hat_limsup) if np.isfinite(b.phi_hat_limsup) else None,
         "V1_min_final": _num(v_min), "eps_reached": bool(v_min <= p["eps"]),
     }
 

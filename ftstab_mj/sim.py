@@ -450,7 +450,12 @@ def simulate(plant: Plant, loops, duration: float, period: float, physics_step: 
             _close(opened, FAILED, {}, f"{type(exc).__name__}: {exc}")
         raise
     result = RunResult(status=status, message=message, info=info, **_concatenate(batches, sim))
-    _close(opened, status, metrics(info, result.loops, status) if metrics else {}, message)
+    try:
+        final = metrics(info, result.loops, status) if metrics else {}
+    except BaseException as exc:  # the logs must still end with a status, never without /metrics
+        _close(opened, FAILED, {}, f"metrics could not be computed: {type(exc).__name__}: {exc}")
+        raise
+    _close(opened, status, final, message)
     return result
 
 

@@ -95,3 +95,29 @@ def test_progress_shows_on_a_terminal_only_once_the_run_lasts():
     piped._last -= 1.0
     piped.write(_batch(2.5))
     assert piped.stream.getvalue() == ""  # not a terminal: logs and pipes stay clean
+
+
+def test_unusable_out_is_bad_input_and_leaves_no_log(tmp_path):
+    """--out that cannot hold the logs: exit 2, one line, and neither log is written (the .mcap is
+    not opened while the .rrd is unusable)."""
+    blocked = tmp_path / "a"
+    (blocked / "cart_r2_robust.rrd").mkdir(parents=True)
+    res = run_cli("run", "cart_r2_robust", "--out", blocked, "--set", "sim.duration=0.1")
+    assert res.returncode == 2 and len(res.stderr.strip().splitlines()) == 1 and "Traceback" not in res.stderr
+    assert not (blocked / "cart_r2_robust.mcap").exists()
+    res = run_cli("run", "cart_r2_robust", "--out", "/proc/no/such/dir", "--set", "sim.duration=0.1")
+    assert res.returncode == 2 and "--out" in res.stderr and "Traceback" not in res.stderr
+
+
+def test_damped_cart_claims_no_bound(tmp_path):
+    """Damping adds -b x'/m to phi, unbounded without a speed limit: the robust law's guarantee must
+    not be reported as applying, and "computed" bounds are refused (a review found both claimed)."""
+    res = run_cli("run", "cart_r2_robust", "--out", tmp_path, "--json", "--set", "plant.damping=2",
+                  "--set", "sim.duration=0.5")
+    assert res.returncode == 0, res.stderr
+    loop = json.loads(res.stdout)["loops"]["cart"]
+    assert loop["bound_applies"] is False
+    res = run_cli("run", "cart_r2_robust", "--out", tmp_path / "x", "--set", "plant.damping=2",
+                  "--set", 'loops.cart.controller.phibar="computed"')
+    assert res.returncode == 2 and "loops.cart.controller.phibar" in res.stderr and "Traceback" not in res.stderr
+    assert not (tmp_path / "x").exists()

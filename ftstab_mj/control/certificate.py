@@ -140,7 +140,7 @@ class Theorem3Bounds:
 
     Phibar: float
     Delta: float  # limsup V1 <= Delta
-    phi_hat_limsup: float  # limsup phi_hat <= 2 Phibar + rate Delta^(1-alpha) / (c (1-alpha))
+    phi_hat_limsup: float  # limsup phi_hat <= 2 Phibar + rate Delta^(1-alpha) / (c (1-alpha)); inf at k = 0
 
 
 def theorem3_bounds(cert: Certificate, phibar: float, gamma_m: float, kappa: float, delta: float,
@@ -156,5 +156,7 @@ def theorem3_bounds(cert: Certificate, phibar: float, gamma_m: float, kappa: flo
     ap = cert.alpha_prime
     Delta = (eps ** (1.0 - ap) + cert.c_prime * (1.0 - ap) * gamma_m * Phibar ** 2 / (2.0 * rate)) ** (1.0 / (1.0 - ap))
     a = cert.alpha
-    limsup = 2.0 * Phibar + rate * Delta ** (1.0 - a) / (cert.c * (1.0 - a))
+    # At k = 0 (alpha = 1) V1 decays exponentially, never reaching 0 in finite time: the proof's
+    # last phase has no end, so the bound on phi_hat is infinite.
+    limsup = 2.0 * Phibar + rate * Delta ** (1.0 - a) / (cert.c * (1.0 - a)) if a < 1.0 else float("inf")
     return Theorem3Bounds(Phibar=float(Phibar), Delta=float(Delta), phi_hat_limsup=float(limsup))

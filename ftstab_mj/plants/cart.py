@@ -96,4 +96,6 @@ class CartPlant(Plant):
         (plo, phi_hi), = phi_bounds
         (glo, ghi), = gamma_bounds
         phibar = max(abs(plo), abs(phi_hi)) + (0.0 if self.integrating else self.friction / self.mass)
+        if self.damping > 0.0:  # phi holds -b x'/m (r = 2; -b x''/m for r = 3): unbounded without a speed limit
+            phibar = float("inf")
         return np.array([phibar]), np.array([glo]), np.array([ghi])

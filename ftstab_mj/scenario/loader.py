@@ -210,6 +210,10 @@ def _check(sc: Scenario, rd: _Reader) -> Scenario:
         if len(lp.z0) != r:
             raise rd.error(f"{p}.z0", f"{r} numbers (z_1..z_r, r = {r} for model {sc.plant.model!r})",
                            f"{len(lp.z0)} numbers")
+        for i, zi in enumerate(lp.z0):  # a run must not start in the state it would stop as diverged
+            if abs(zi) > sc.sim.divergence_limit:
+                raise rd.error(f"{p}.z0[{i}]", f"|z0| <= sim.divergence_limit = {sc.sim.divergence_limit:g}",
+                               describe(zi))
         if len(c.gains) != r:
             raise rd.error(f"{p}.controller.gains", f"{r} gains l_1..l_r (r = {r} for model {sc.plant.model!r})",
                            f"{len(c.gains)} gains")
@@ -226,7 +230,7 @@ def _check(sc: Scenario, rd: _Reader) -> Scenario:
         seeds = {role: _derived_seed(sc.seed, lp.name, role) for role in _SIGNAL_ROLES}
         loops.append(replace(lp, disturbance=replace(lp.disturbance, seed=seeds["disturbance"]),
                              gain=replace(lp.gain, seed=seeds["gain"])))
-    return _computed_bounds(replace(sc, loops=tuple(loops)), plant)
+    return _computed_bounds(replace(sc, loops=tuple(loops)), plant, rd)
 
 
 def _check_plant(sc: Scenario, rd: _Reader):
@@ -245,7 +249,7 @@ def _check_plant(sc: Scenario, rd: _Reader):
     return plant
 
 
-def _computed_bounds(sc: Scenario, plant) -> Scenario:
+def _computed_bounds(sc: Scenario, plant, rd: _Reader) -> Scenario:
     """Replace robust bounds given as "computed" by the plant's bounds for the scenario's signals."""
     wanted = [(i, name) for i, lp in enumerate(sc.loops) for name in ROBUST_PARAMS
               if lp.controller.law == "robust" and getattr(lp.controller, name) == COMPUTED]
@@ -259,6 +263,10 @@ def _computed_bounds(sc: Scenario, plant) -> Scenario:
     value.update({(n, "gamma_m"): float(gamma_m[k]) for k, n in enumerate(plant.loop_names)})
     loops = list(sc.loops)
     for i, name in wanted:
+        if not math.isfinite(value[(loops[i].name, name)]):
+            raise rd.error(f"loops.{loops[i].name}.controller.{name}",
+                           "a number, since this plant's bound is infinite (damping adds -b x'/m to phi, "
+                           "unbounded without a speed limit)", f'"{COMPUTED}" with damping = {plant.damping:g}')
         loops[i] = replace(loops[i], controller=replace(loops[i].controller, **{name: value[(loops[i].name, name)]}))
     return replace(sc, loops=tuple(loops))
 

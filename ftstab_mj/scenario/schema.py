@@ -52,6 +52,16 @@ def open_unit_interval(v):
     return None if 0 < v < 1 else "a number in the open interval (0, 1)"
 
 
+def time_step(v):
+    # 1e-7 s is 10 million steps per simulated second; below it a run is an error, not a study.
+    return None if v >= 1e-7 else "a time step >= 1e-7 s"
+
+
+def state_limit(v):
+    # MuJoCo resets a state beyond 1e10 on its own (a warning, zeros): our limit must fire first.
+    return None if 0 < v <= 1e9 else "a number in (0, 1e9] (MuJoCo resets states beyond 1e10)"
+
+
 def fraction(v):
     return None if 0 < v <= 1 else "a number in (0, 1]"
 
@@ -96,12 +106,12 @@ class SimSpec:
     """Time discretisation of the run."""
 
     duration: float = field(metadata=meta("run length (s)", positive))
-    physics_step: float = field(default=1e-3, metadata=meta("MuJoCo timestep (s)", positive))
+    physics_step: float = field(default=1e-3, metadata=meta("MuJoCo timestep (s)", time_step))
     period: float = field(default=1e-3, metadata=meta(
         "control period (s), an integer multiple of physics_step; u is held over it", positive))
     integrator: str = field(default="euler", metadata=meta("MuJoCo integrator", one_of(*INTEGRATORS)))
     divergence_limit: float = field(default=1e3, metadata=meta(
-        "the run stops as diverged when some |z_i| exceeds it (chain units)", positive))
+        "the run stops as diverged when some |z_i| exceeds it (chain units)", state_limit))
 
 
 @dataclass(frozen=True)
@@ -163,10 +173,6 @@ class Scenario:
     loops: tuple[LoopSpec, ...] = field(metadata=meta("the control loops, one table per loop name"))
     seed: int = field(default=0, metadata=meta("seed of every random signal of the run", non_negative))
     metrics: MetricSettings = field(default_factory=MetricSettings, metadata=meta("how metrics read the run"))
-
-    @property
-    def steps_per_period(self) -> int:
-        return int(round(self.sim.period / self.sim.physics_step))
 
 
 # Range checks of classes defined elsewhere (their own constructors check the rest).
