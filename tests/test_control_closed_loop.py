@@ -163,14 +163,21 @@ def test_adaptive_theorem3(r, params):
         assert entries >= 3, f"only {entries} entries into the eps-ball"
 
 
-def test_adaptive_without_adaptation_is_not_enough():
-    """Control experiment for the test above: with phi_hat frozen at 0 (rate tiny, decay only), the
-    same disturbance keeps V1 far above eps, so the adaptation is what brings V1 into the ball."""
+def test_adaptation_is_what_keeps_V1_in_the_eps_ball():
+    """Control experiment for the test above: the same law with adaptation switched off (rate
+    1e-9, phi_hat stays ~0) against rate 1. Over the last 10 s, adaptation keeps V1 inside the
+    eps-ball most of the time and lowers its peaks (measured: 69 % vs 29 % of the time, max V1
+    0.072 vs 0.099); asserted with margins: > 60 % vs < 40 %, and a lower maximum."""
     h = hong(2)
-    law = AdaptiveLaw(h, kappa=1.0, delta=0.2, rate=1e-9, eta=0.5, eps=0.01)
-    run = simulate_chain(law, np.array([1.0, 0.0]), 1e-3, 30.0, Signal("sine", 0.0, 1.0, freq=0.5),
-                         Signal("sine", 1.0, 0.5, freq=0.3))
-    assert run.V1[run.t >= 20.0].min() > 0.01 or run.V1[run.t >= 20.0].max() > 0.05
+    late = {}
+    for rate in (1e-9, 1.0):
+        law = AdaptiveLaw(h, kappa=1.0, delta=0.2, rate=rate, eta=0.5, eps=0.01)
+        run = simulate_chain(law, np.array([1.0, 0.0]), 1e-3, 30.0, Signal("sine", 0.0, 1.0, freq=0.5),
+                             Signal("sine", 1.0, 0.5, freq=0.3))
+        late[rate] = run.V1[run.t >= 20.0]
+    inside = {rate: float(np.mean(v <= 0.01)) for rate, v in late.items()}
+    assert inside[1.0] > 0.6 and inside[1e-9] < 0.4, inside
+    assert late[1.0].max() < late[1e-9].max()
 
 
 # --- phi_hat integration -------------------------------------------------------------------------
