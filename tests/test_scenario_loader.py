@@ -83,7 +83,7 @@ MALFORMED = [
     ("integrator", ROBUST, None, ["sim.integrator=leapfrog"], "sim.integrator"),
     ("step-absurd", ROBUST, None, ["sim.physics_step=1e-300", "sim.period=1e-300"], "sim.physics_step"),
     ("limit-beyond-mujoco", ROBUST, None, ["sim.divergence_limit=1e300"], "sim.divergence_limit"),
-    ("z0-beyond-limit", ROBUST, None, ["loops.cart.z0=[1e300, 0.0]"], "loops.cart.z0[0]"),
+    ("z0-beyond-mujoco", ROBUST, None, ["loops.cart.z0=[1e300, 0.0]"], "loops.cart.z0[0]"),
 ]
 
 
