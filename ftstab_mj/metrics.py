@@ -127,6 +127,23 @@ def eps_ball(t, V1, eps):
     return float(t[inside[0]]), _num(np.min(after)), _num(np.max(after))
 
 
+def workspace_left(loop, z, u) -> str | None:
+    """What left the region where the loop's true bounds hold (LoopInfo.workspace), "" when
+    nothing did, None when the bounds hold everywhere. z (n, r) and u (n,) are the samples."""
+    w = loop.workspace
+    if w is None:
+        return None
+    out = []
+    z1, z2, ua = z[:, 0], np.abs(z[:, 1]), np.abs(u)
+    if np.nanmin(z1) < w["z1_min"] or np.nanmax(z1) > w["z1_max"]:
+        out.append(f"z_1 spanned [{np.nanmin(z1):.3g}, {np.nanmax(z1):.3g}], outside [{w['z1_min']:g}, {w['z1_max']:g}]")
+    if np.nanmax(z2) > w["z2_abs_max"]:
+        out.append(f"|z_2| reached {np.nanmax(z2):.3g} > {w['z2_abs_max']:g}")
+    if np.nanmax(ua) > w["u_abs_max"]:
+        out.append(f"|u| reached {np.nanmax(ua):.3g} > {w['u_abs_max']:g}")
+    return "; ".join(out)
+
+
 def theorem3_check(loop, V1_final, phi_hat_final):
     """Theorem 3's bounds (true phibar, gamma_m) and whether the final window respects them.
 
@@ -172,7 +189,8 @@ def loop_metrics(info: RunInfo, loop, arrays: dict) -> dict:
         win[-1] = True
     ts = settle_time(t, V1, ms.settle_level)
     tb = time_bound(loop, float(V1[0]))
-    applies = bound_applies(loop)
+    left = workspace_left(loop, a["z"], u)
+    applies = bound_applies(loop) and not left  # the true bounds only hold inside the workspace
     eps = float(loop.law_params["eps"]) if loop.law == "adaptive" else ms.settle_level
     entry, v_min, v_max = eps_ball(t, V1, eps)
     e_abs, e_sq, u_max = effort(u, h)
@@ -183,6 +201,7 @@ def loop_metrics(info: RunInfo, loop, arrays: dict) -> dict:
         "settle_level": ms.settle_level,
         "settle_time": ts,
         "time_bound": tb,
+        "workspace_left": left,
         "bound_applies": applies,
         "beat_bound": (bool(ts <= tb) if applies and ts is not None and tb is not None else None),
         "final_window_start": float(t[win][0]),
@@ -197,7 +216,7 @@ def loop_metrics(info: RunInfo, loop, arrays: dict) -> dict:
         "V1_max_after_entry": v_max,
         "phi_hat_max": _num(np.max(a["phi_hat"])),
         "phi_hat_final": _num(a["phi_hat"][-1]),
-        "theorem3": theorem3_check(loop, V1[win], a["phi_hat"][win]),
+        "theorem3": None if left else theorem3_check(loop, V1[win], a["phi_hat"][win]),
     })
     return out
 

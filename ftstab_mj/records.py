@@ -45,6 +45,9 @@ class LoopInfo:
     true_phibar: float
     true_gamma_m: float
     true_gamma_M: float
+    # Where the true bounds hold (Plant.loop_workspace), None when everywhere: z1_min, z1_max,
+    # z2_abs_max (chain units), u_abs_max (control units). Metrics check the samples against it.
+    workspace: dict | None = None
 
 
 @dataclass(frozen=True)

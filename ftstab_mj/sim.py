@@ -205,7 +205,8 @@ class Simulation:
             infos.append(LoopInfo(name=L.name, r=h.r, law=law_kind(L.law),
                                   hong={"r": h.r, "k": h.k, "gains": list(h.gains), "form": h.form},
                                   law_params=_law_params(L.law), true_phibar=float(phibar[i]),
-                                  true_gamma_m=float(gm[i]), true_gamma_M=float(gM[i])))
+                                  true_gamma_m=float(gm[i]), true_gamma_M=float(gM[i]),
+                                  workspace=self.plant.loop_workspace(i, float(L.ref))))
         return RunInfo(scenario=dict(scenario or {}), loops=tuple(infos), period=self.period,
                        physics_step=self.physics_step, metric_settings=metric_settings or MetricSettings(),
                        model_xml=self.model_xml, body_names=tuple(self.plant.body_names))

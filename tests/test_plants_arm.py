@@ -7,6 +7,7 @@ import pytest
 from ftstab_mj.control import HongController, RobustLaw, certify
 from ftstab_mj.disturbances import Signal
 from ftstab_mj.errors import ParameterError
+from ftstab_mj.metrics import compute_metrics, workspace_left
 from ftstab_mj.plants import make_plant
 from ftstab_mj.plants.arm import _max_abs_quadratic
 from ftstab_mj.sim import LoopSpec, simulate
@@ -112,7 +113,8 @@ def test_arm_joints_reach_their_set_points_with_the_robust_law_and_the_computed_
         T = V1[0] ** (1 - cert.alpha) / (cert.c * (1 - cert.alpha))
         assert s["t"][np.argmax(V1 < 1e-3)] <= T and V1[0] > 1e-3
         assert np.abs(s["z"][-500:, 0]).max() < 0.01  # rad, last second
-    assert plant.outside_workspace(res.loops, dict(zip(plant.loop_names, REF))) == ""
+    assert all(workspace_left(info, res.loops[info.name]["z"], res.loops[info.name]["u"]) == ""
+               for info in res.info.loops)
 
 
 def test_leaving_the_workspace_is_reported(arm):
@@ -121,9 +123,11 @@ def test_leaving_the_workspace_is_reported(arm):
     loops = [LoopSpec(f"joint{i}", RobustLaw(HONG, phibar=10.0, gamma_m=1.0), z0=(0.0 - REF[i], 0.0), ref=REF[i])
              for i in range(2)]
     res = simulate(plant, loops, duration=3.0, period=0.01, physics_step=0.001)
-    report = plant.outside_workspace(res.loops, dict(zip(plant.loop_names, REF)))
-    assert "joint0: q spanned" in report and "outside [-0.3, 0.4] rad" in report
-    assert "joint0: |u| reached" in report and "> u_max 5 N m" in report and "joint1: |u| reached" in report
+    m = compute_metrics(res.info, res.loops, res.status)["loops"]
+    j0, j1 = m["joint0"]["workspace_left"], m["joint1"]["workspace_left"]
+    assert f"outside [{-0.3 - REF[0]:g}, {0.4 - REF[0]:g}]" in j0  # q range, in z_1 = q - ref
+    assert "|u| reached" in j0 and "> 5" in j0 and "|u| reached" in j1 and "> 1" in j1
+    assert m["joint0"]["bound_applies"] is False and m["joint1"]["bound_applies"] is False
 
 
 @pytest.mark.parametrize("params, match", [

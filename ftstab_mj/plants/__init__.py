@@ -13,7 +13,7 @@ Signal units differ: the carts take phi and gamma in chain units, the arm takes 
 joint torque (N m) and gamma as a motor gain factor (plant.phi_units / plant.gamma_units say it).
 Bounds in chain units for given signal ranges: plant.true_bounds(phi_bounds, gamma_bounds) ->
 (phibar, gamma_m, gamma_M), arrays over the loops; for the arm they hold inside its workspace,
-which plant.outside_workspace(samples, refs) checks after a run.
+which plant.loop_workspace(i, ref) states and the metrics check for every run ("workspace_left").
 
 An unknown model or parameter raises ParameterError naming it. See base.py for how the run loop
 drives a plant (inputs, sensing, userdata) and each module for its physics and units.

@@ -136,23 +136,10 @@ class ArmPlant(Plant):
         gamma = gain * np.diag(Minv)
         return acc - gamma * u, gamma
 
-    def outside_workspace(self, loops: dict, refs: dict) -> str:
-        """What left the workspace of the bounds (q range, |q'|, |u|), or "" when nothing did.
-        loops: {loop: {field: array}} samples; refs: {loop: set point (rad)}."""
-        out = []
-        for i, name in enumerate(self.loop_names):
-            s = loops[name]
-            if not len(s["t"]):
-                continue
-            q = s["z"][:, 0] + refs[name]
-            qd, u = np.abs(s["z"][:, 1]).max(), np.abs(s["u"]).max()
-            if q.min() < self.q_min[i] or q.max() > self.q_max[i]:
-                out.append(f"{name}: q spanned [{q.min():.3g}, {q.max():.3g}], outside [{self.q_min[i]:g}, {self.q_max[i]:g}] rad")
-            if qd > self.qd_max[i]:
-                out.append(f"{name}: |q'| reached {qd:.3g} > qd_max {self.qd_max[i]:g} rad/s")
-            if u > self.u_max[i]:
-                out.append(f"{name}: |u| reached {u:.3g} > u_max {self.u_max[i]:g} N m")
-        return "; ".join(out)
+    def loop_workspace(self, i: int, ref: float) -> dict:
+        """The workspace the bounds were computed for, seen from loop i (see Plant.loop_workspace)."""
+        return {"z1_min": float(self.q_min[i] - ref), "z1_max": float(self.q_max[i] - ref),
+                "z2_abs_max": float(self.qd_max[i]), "u_abs_max": float(self.u_max[i])}
 
     def true_bounds(self, phi_bounds, gamma_bounds):
         D = np.array([max(abs(lo), abs(hi)) for lo, hi in phi_bounds])

@@ -137,10 +137,11 @@ class Plant:
         gain factor. ``m`` may be None (a question about the plant only)."""
         return None
 
-    def outside_workspace(self, loops: dict, refs: dict) -> str:
-        """"" when the samples ({loop: {field: array}}, set points refs {loop: ref}) stayed where the
-        plant's true bounds hold, else what left it. The carts' bounds hold everywhere: ""."""
-        return ""
+    def loop_workspace(self, i: int, ref: float) -> dict | None:
+        """Where loop i's true bounds hold, in chain units (z_1 = q - ref) and control units:
+        {"z1_min", "z1_max", "z2_abs_max", "u_abs_max"}; None when they hold everywhere (the carts).
+        Written into LoopInfo so that metrics (live and replay) can tell whether a run stayed there."""
+        return None
 
     def sensor_block(self, m, name: str) -> slice:
         """Slice of d.sensordata holding sensor ``name``."""
