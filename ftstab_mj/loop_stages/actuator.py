@@ -1,0 +1,88 @@
+"""The actuator of one loop: what the plant receives when the law asks for u (chain units).
+
+Per control sample, the command the law asked for goes through, in this order:
+
+1. a dead zone of half-width d: u - d sign(u) outside [-d, d], 0 inside (the continuous
+   dead-zone nonlinearity, e.g. dry friction in a drive);
+2. saturation at |u| <= u_max;
+3. a rate limit |du/dt| <= rate_max: the command moves from the previous one by at most
+   rate_max * period per sample (the previous command is state; 0 at rest before the run);
+4. a first-order lag with time constant tau (unmodelled actuator dynamics, T u_a' = u_c - u_a):
+   realised as a filter state u_a integrated exactly over each physics step h with the command
+   held, u_a <- u_c + (u_a - u_c) exp(-h / tau), so the plant receives a force that moves
+   within the control period (u_a = 0 at rest before the run). The value at the sample instant is
+   what is logged as ``u_applied``.
+
+Every stage at its default (d = 0, u_max = rate_max = inf, tau = 0) is the identity, bit for bit.
+State (2,): the last rate-limited command and the lag's output.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ftstab_mj.errors import ParameterError
+
+STATE_SIZE = 2
+
+
+def _number(name, value, lo, allow_inf):
+    ok = isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool)
+    ok = ok and not math.isnan(value) and (allow_inf or math.isfinite(value)) and value >= lo
+    return ok
+
+
+@dataclass(frozen=True)
+class ActuatorModel:
+    """u_max (> 0, inf: none), rate_max (> 0 per second, inf: none), tau (>= 0 s), dead_zone (>= 0),
+    all in chain units of u."""
+
+    u_max: float = math.inf
+    rate_max: float = math.inf
+    tau: float = 0.0
+    dead_zone: float = 0.0
+
+    def __post_init__(self):
+        for name, allow_inf in (("u_max", True), ("rate_max", True), ("tau", False), ("dead_zone", False)):
+            v = getattr(self, name)
+            if not _number(name, v, 0.0, allow_inf) or (name in ("u_max", "rate_max") and v == 0):
+                raise ParameterError(name, "a number > 0 (inf: none)" if allow_inf else "a finite number >= 0", v)
+            object.__setattr__(self, name, float(v))
+
+    @property
+    def ideal(self) -> bool:
+        return (self.u_max == math.inf and self.rate_max == math.inf and self.tau == 0.0
+                and self.dead_zone == 0.0)
+
+    def initial_state(self) -> np.ndarray:
+        return np.zeros(STATE_SIZE)
+
+    def saturated(self, u) -> np.ndarray:
+        """True where the law asks for more than u_max (after the dead zone)."""
+        return np.abs(u) - self.dead_zone > self.u_max
+
+    def command(self, u, state, period: float) -> float:
+        """Stages 1-3: the command u_c for a law output u (float) given the state."""
+        if self.dead_zone:
+            u = math.copysign(max(abs(u) - self.dead_zone, 0.0), u)
+        if self.u_max != math.inf:
+            u = min(max(u, -self.u_max), self.u_max)
+        if self.rate_max != math.inf:
+            step = self.rate_max * period
+            prev = float(state[0])
+            u = min(max(u, prev - step), prev + step)
+        return u
+
+    def steps(self, u_c: float, state, h: float, N: int):
+        """Stage 4 over one period of N physics steps of h: (the input at each step (N,), new state).
+
+        new state = (u_c, lag output at the end of the period).
+        """
+        if self.tau == 0.0:
+            return np.full(N, u_c), np.array([u_c, u_c])
+        decay = math.exp(-h / self.tau)
+        ua = u_c + (float(state[1]) - u_c) * decay ** np.arange(N + 1)
+        return ua[:N], np.array([u_c, ua[N]])
