@@ -41,7 +41,7 @@ import mujoco
 import numpy as np
 
 from ftstab_mj import native as native_path
-from ftstab_mj.callback import control_callback
+from ftstab_mj.callback import control_callback, slot_owner
 from ftstab_mj.control.laws import AdaptiveLaw, NominalLaw, RobustLaw, advance_phi_hat
 from ftstab_mj.disturbances import Signal
 from ftstab_mj.errors import CallbackError, ParameterError
@@ -229,13 +229,13 @@ class Simulation:
 
     def installed(self):
         """Context manager installing this simulation's control callback (previous one restored)."""
-        return control_callback(self.callback)
+        return control_callback(self.callback, owner=self)
 
     # -- running ----------------------------------------------------------------------------------
     def advance(self, n_samples: int) -> SampleBatch:
         """Run n_samples control periods (fewer if the run diverges: see ``stop_reason``) and return
         their samples. Must be called between samples, with the callback installed."""
-        if mujoco.get_mjcb_control() is not self.callback:
+        if slot_owner() is not self or mujoco.get_mjcb_control() is not self.callback:
             raise RuntimeError("Simulation.advance needs its control callback installed (use `with sim.installed():`)")
         m, d, N, n = self.model, self.data, self.N, self.plant.n
         # d.time is a running float sum of steps, so it drifts from k * period (1e-10 s after 369,000

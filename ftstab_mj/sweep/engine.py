@@ -11,6 +11,15 @@ table). A run's result depends on its parameters only, so the table does not dep
   processes by default, or the scheduler at ``scheduler`` (its workers must have ftstab_mj
   installed). Processes, not threads: MuJoCo's control callback is one slot per process.
 
+One simulation at a time per process, whatever the engine: :func:`guarded` holds the process's
+:data:`ftstab_mj.callback.ONE_RUN` lock for the whole run, so on an external cluster whose workers
+have several threads (``dask worker`` starts several by default) the threads of one worker take
+turns, and the table is the serial one. A per-process lock rather than worker resources (a task
+that asks for a resource no worker declares waits for ever) or a refusal of multi-threaded workers
+(the default ``dask worker`` would be refused, and a worker can join the cluster mid-sweep): it
+needs nothing from the cluster's configuration. The cost: a worker process runs one row at a time,
+so its extra threads add no speed (start workers with ``--nthreads 1 --nworkers N`` for N at once).
+
 A result of ``None`` means the run was lost by the engine (its worker process died): it is not a
 result of the run and the caller must not record it as one.
 """
@@ -21,6 +30,7 @@ import time
 import uuid
 from collections.abc import Callable, Iterable, Iterator
 
+from ftstab_mj.callback import ONE_RUN
 from ftstab_mj.errors import EngineError
 from ftstab_mj.records import FAILED
 
@@ -31,14 +41,17 @@ def guarded(task: Callable[[int, tuple], dict], index: int, params: tuple) -> di
     """``task(index, params)`` with any exception turned into a failed result; adds ``elapsed_s`` (wall s).
 
     A failed result is ``{"status": "failed", "error": "<ExceptionType>: <message>", "metrics": {}}``.
-    KeyboardInterrupt is not caught: an interrupted run is not a result.
+    KeyboardInterrupt is not caught: an interrupted run is not a result. The run holds
+    :data:`~ftstab_mj.callback.ONE_RUN` (one simulation at a time per process); ``elapsed_s`` does not
+    count the wait for it.
     """
-    t0 = time.perf_counter()
-    try:
-        out = dict(task(index, params))
-    except Exception as exc:  # noqa: BLE001 - any failure of one run is recorded, the sweep goes on
-        out = {"status": FAILED, "error": f"{type(exc).__name__}: {exc}", "metrics": {}}
-    out["elapsed_s"] = time.perf_counter() - t0
+    with ONE_RUN:
+        t0 = time.perf_counter()
+        try:
+            out = dict(task(index, params))
+        except Exception as exc:  # noqa: BLE001 - any failure of one run is recorded, the sweep goes on
+            out = {"status": FAILED, "error": f"{type(exc).__name__}: {exc}", "metrics": {}}
+        out["elapsed_s"] = time.perf_counter() - t0
     return out
 
 

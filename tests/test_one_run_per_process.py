@@ -1,0 +1,180 @@
+"""One simulation per process: MuJoCo's control callback is one global slot (and the native kernel
+has one active run), so two runs at once in one process would step with each other's callback.
+
+Pinned here: a second run's callback cannot be installed while one is (a clear error, never a wrong
+trajectory), in the same thread or another; the sweep engines run one simulation at a time per
+process whatever the worker's thread count, so a real ``dask worker --nthreads 2`` gives the
+serial table.
+"""
+
+import ctypes
+import json
+import os
+import subprocess
+import sys
+import threading
+import time
+
+import mujoco
+import numpy as np
+import pytest
+
+from conftest import ROOT, run_cli
+from test_sweep_cli import results, small_sweep
+from ftstab_mj import native
+from ftstab_mj.callback import CallbackBusy, control_callback
+from ftstab_mj.control import HongController, RobustLaw
+from ftstab_mj.disturbances import Signal
+from ftstab_mj.plants import make_plant
+from ftstab_mj.sim import LoopSpec, Simulation
+from ftstab_mj.sweep.engine import guarded
+from ftstab_mj.sweep.runner import ScenarioTask
+from ftstab_mj.sweep.table import read_table
+from ftstab_mj.tomlfile import read_toml
+
+LAW = RobustLaw(HongController(2, -0.2, (1.0, 2.0)), phibar=0.5, gamma_m=0.8)
+
+
+def cart_sim(native_path="auto", amplitude=0.4):
+    loops = [LoopSpec("cart", LAW, phi=Signal("sine", amplitude=amplitude, freq=1.0), z0=(1.0, 0.0))]
+    return Simulation(make_plant("cart"), loops, period=0.01, physics_step=0.001, native=native_path)
+
+
+def in_thread(fn):
+    """Run fn() in another thread; return what it raised (None if nothing)."""
+    out = []
+
+    def target():
+        try:
+            fn()
+        except BaseException as exc:  # noqa: BLE001 - handed back to the test
+            out.append(exc)
+
+    t = threading.Thread(target=target, name="second")
+    t.start()
+    t.join(60)
+    return out[0] if out else None
+
+
+@pytest.mark.parametrize("native_path", [False, "auto"])
+def test_a_second_run_s_callback_is_refused_in_this_thread_and_the_first_run_goes_on(native_path):
+    first, second = cart_sim(native_path), cart_sim(native_path, amplitude=0.8)
+    alone = cart_sim(native_path)
+    with alone.installed():
+        reference = alone.advance(20).loops["cart"]["z"]
+    with first.installed():
+        a = first.advance(10).loops["cart"]["z"]
+        with pytest.raises(CallbackBusy, match=r"cannot install a second simulation's control callback: MuJoCo's "
+                                               r"control callback is one slot per process .*--nthreads 1"):
+            with second.installed():
+                pass
+        # stepping another simulation without installing its callback is refused too (the native
+        # runs share one C function, so the callback's identity alone would not tell them apart)
+        with pytest.raises(RuntimeError, match="needs its control callback installed"):
+            second.advance(1)
+        b = first.advance(10).loops["cart"]["z"]
+    np.testing.assert_array_equal(np.concatenate([a, b]), reference)  # the refusals changed nothing
+    with second.installed():  # free again once the first run's block is left
+        second.advance(1)
+
+
+def test_another_thread_can_neither_install_a_callback_nor_clear_the_slot_while_a_run_steps():
+    sim, other = cart_sim(), cart_sim()
+    with sim.installed():
+        busy = in_thread(lambda: other.installed().__enter__())
+        assert isinstance(busy, CallbackBusy) and "thread 'MainThread'" in str(busy)
+        # compiling clears the slot: from another thread it would take the callback from under the run
+        busy = in_thread(lambda: make_plant("cart").compile(0.001))
+        assert isinstance(busy, CallbackBusy) and "clear the control callback (to compile a model)" in str(busy)
+        assert mujoco.get_mjcb_control() is sim.callback
+        with control_callback(None):  # the run's own thread may compile between two batches
+            make_plant("cart").compile(0.001)
+        assert mujoco.get_mjcb_control() is sim.callback
+        sim.advance(2)
+    assert in_thread(lambda: make_plant("cart").compile(0.001)) is None
+
+
+@pytest.mark.skipif(not native.available(), reason="the C kernel is not built")
+def test_the_native_kernel_serves_one_batch_at_a_time():
+    """ft_run_activate is a compare-and-swap: a second run is refused while a batch is active."""
+    from ftstab_mj.native.run import FtRun, _lib
+
+    lib = _lib()
+    sim = cart_sim(True)
+    busy = FtRun()
+    assert lib.ft_run_activate(ctypes.byref(busy)) == 0
+    try:
+        with sim.installed():
+            with pytest.raises(CallbackBusy, match="another simulation's native batch is stepping"):
+                sim.advance(1)
+    finally:
+        lib.ft_run_release(ctypes.byref(busy))
+    with sim.installed():
+        assert len(sim.advance(3)) == 3  # released: the next batch runs
+
+
+def test_sweep_rows_run_in_threads_of_one_process_give_the_serial_results(tmp_path):
+    """What a multi-threaded Dask worker does: several threads call the engine's guarded(task) at
+    once. Each waits for the process's one run; every row equals its serial result."""
+    base = read_toml(ROOT / "scenarios" / "cart_r2_robust.toml", "scenario")
+    base["sim"]["duration"] = 0.3
+    task = ScenarioTask(base, "test")
+    params = [(("loops.cart.disturbance.amplitude", a),) for a in (0.2, 0.4, 0.8, 1.6)]
+    serial = [guarded(task, i, p) for i, p in enumerate(params)]
+    threaded = [None] * len(params)
+
+    def row(i):
+        threaded[i] = guarded(task, i, params[i])
+
+    threads = [threading.Thread(target=row, args=(i,)) for i in range(len(params))]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(120)
+    assert [r["status"] for r in threaded] == ["completed"] * 4
+    assert [r["metrics"] for r in threaded] == [r["metrics"] for r in serial]
+
+
+@pytest.fixture
+def dask_cluster(tmp_path):
+    """A real `dask scheduler` and one `dask worker --nthreads 2` (the default of `dask worker` is
+    several threads), as a user starts them; yields the scheduler address."""
+    env = dict(os.environ)
+    env["PYTHONPATH"] = str(ROOT) + os.pathsep + env.get("PYTHONPATH", "")
+    dask = os.path.join(os.path.dirname(sys.executable), "dask")
+    info = tmp_path / "scheduler.json"
+    quiet = {"stdout": subprocess.DEVNULL, "stderr": subprocess.DEVNULL, "env": env, "cwd": tmp_path}
+    procs = [subprocess.Popen([dask, "scheduler", "--host", "127.0.0.1", "--port", "0", "--no-dashboard",
+                               "--scheduler-file", str(info)], **quiet)]
+    try:
+        deadline = time.monotonic() + 60
+        while not info.exists() and time.monotonic() < deadline:
+            time.sleep(0.05)
+        address = json.loads(info.read_text())["address"]
+        procs.append(subprocess.Popen([dask, "worker", address, "--nthreads", "2", "--no-nanny", "--no-dashboard"],
+                                      **quiet))
+        from distributed import Client
+
+        with Client(address, timeout="30s") as client:
+            client.wait_for_workers(1, timeout=60)
+            assert [w["nthreads"] for w in client.scheduler_info()["workers"].values()] == [2]
+        yield address
+    finally:  # the worker first (it says goodbye to the scheduler), each killed if it lingers
+        for p in reversed(procs):
+            p.terminate()
+            try:
+                p.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                p.kill()
+                p.wait(timeout=10)
+
+
+def test_a_sweep_on_a_two_thread_dask_worker_gives_the_serial_table(tmp_path, dask_cluster):
+    sweep = small_sweep(tmp_path)
+    tables = {}
+    for name, args in (("serial", ()), ("dask", ("--scheduler", dask_cluster))):
+        res = run_cli("sweep", sweep, "--out", tmp_path / name, *args)
+        assert res.returncode == 0, res.stderr
+        assert "12/12 runs in the table (8 completed, 4 failed)" in res.stdout, res.stdout
+        tables[name] = results(read_table(tmp_path / name / "small.parquet"))
+    assert tables["dask"] == tables["serial"]
