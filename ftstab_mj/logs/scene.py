@@ -42,7 +42,10 @@ def model_shapes(model_xml: str, body_names) -> list[Shape]:
     """
     import mujoco
 
-    m = mujoco.MjModel.from_xml_string(model_xml)
+    from ftstab_mj.callback import control_callback
+
+    with control_callback(None):  # compiling runs a forward pass that would call a caller's callback
+        m = mujoco.MjModel.from_xml_string(model_xml)
     wanted = set(body_names) | {"world"}
     out = []
     for g in range(m.ngeom):

@@ -1,0 +1,82 @@
+"""Faults at the edges of a run: a callback of the caller's, a planted symlink, a log without samples."""
+
+import mujoco
+import numpy as np
+import pytest
+
+from conftest import ROOT
+from ftstab_mj.logs import McapSink, RerunSink
+from ftstab_mj.logs.reader import read_log
+from ftstab_mj.logs.rerun_sink import write_rrd
+from ftstab_mj.logs.scene import model_shapes
+from ftstab_mj.logs.verify import verify_log
+from ftstab_mj.metrics import compute_metrics
+from ftstab_mj.plants import make_plant
+from ftstab_mj.records import COMPLETED
+from ftstab_mj.scenario import load_scenario
+from ftstab_mj.scenario.run import run_scenario
+from synthetic_runs import synthetic_run, write_run
+
+
+class CallersCallback:
+    """A Python control callback of the caller's, installed before calling us; it raises if MuJoCo
+    ever calls it (a compile under it fails with "engine error: Python exception raised")."""
+
+    def __init__(self):
+        self.calls = 0
+
+    def __call__(self, m, d):
+        self.calls += 1
+        raise RuntimeError("the caller's callback was called")
+
+
+@pytest.fixture
+def callers_callback():
+    cb = CallersCallback()
+    mujoco.set_mjcb_control(cb)
+    try:
+        yield cb
+    finally:
+        mujoco.set_mjcb_control(None)
+
+
+def test_every_entry_point_that_compiles_a_model_does_it_with_the_callback_cleared(tmp_path, callers_callback):
+    info, loops, pos, quat = synthetic_run("robust", params={"phibar": 0.5, "gamma_m": 0.8}, duration=0.2)
+    metrics = compute_metrics(info, loops, COMPLETED)
+    assert model_shapes(info.model_xml, info.body_names)  # the viewers' shapes (both sinks)
+    assert mujoco.get_mjcb_control() is callers_callback
+    for sink, name in ((McapSink(tmp_path / "a.mcap"), "sink"), (RerunSink(tmp_path / "a.rrd"), "sink")):
+        write_run(sink, info, loops, pos, quat, COMPLETED, metrics, batch=100)
+    write_rrd(tmp_path / "b.rrd", info, loops, (np.empty(0), pos[:0], quat[:0]), COMPLETED, metrics)  # replay --rrd
+    make_plant("arm").compile(0.001)
+    sc = load_scenario(ROOT / "scenarios" / "cart_r2_robust.toml", ["sim.duration=0.05"])
+    run_scenario(sc, (McapSink(tmp_path / "c.mcap"), RerunSink(tmp_path / "c.rrd")))  # ftstab run
+    assert verify_log(read_log(tmp_path / "c.mcap")).ok  # replay --verify
+    assert mujoco.get_mjcb_control() is callers_callback and callers_callback.calls == 0
+
+
+def test_every_model_compile_in_the_package_is_inside_a_cleared_callback_block():
+    """The same rule, for the code to come: every MjModel.from_xml_* / MjSpec.compile() / to_xml()
+    call of the package sits lexically inside ``with control_callback(None):``."""
+    import ast
+
+    compiling = {"from_xml_string", "from_xml_path", "from_binary_path", "to_xml"}
+    bare = []
+    for path in sorted((ROOT / "ftstab_mj").rglob("*.py")):
+        tree = ast.parse(path.read_text(), str(path))
+
+        def visit(node, cleared):
+            if isinstance(node, ast.With):
+                cleared = cleared or any(
+                    isinstance(it.context_expr, ast.Call) and getattr(it.context_expr.func, "id", "") == "control_callback"
+                    and len(it.context_expr.args) == 1 and isinstance(it.context_expr.args[0], ast.Constant)
+                    and it.context_expr.args[0].value is None for it in node.items)
+            if isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute) and not cleared:
+                name = node.func.attr
+                if name in compiling or (name == "compile" and not node.args and not node.keywords):
+                    bare.append(f"{path.relative_to(ROOT)}:{node.lineno} {name}")
+            for child in ast.iter_child_nodes(node):
+                visit(child, cleared)
+
+        visit(tree, False)
+    assert bare == []
