@@ -267,6 +267,121 @@ void ft_simulate_chain(const ft_law *L, int64_t n, double *z, double *phi_hat, i
 #endif
 }
 
+/* ---- the loop stages (ftstab_mj/loop_stages/): sensor, Levant's differentiator, actuator ----------
+ *
+ * The C twin of loop_stages/pipeline.py LoopStages.measure and .actuate, operation by operation.
+ * The sensor noise is drawn in Python (a pure function of seed, loop and sample) and handed over
+ * as a table per batch; the differentiator's gains and exponents are computed in Python too. */
+
+#define FT_OBSMAX 6 /* differentiator states: order + 1 + filter order <= 6 (levant.py MAX_TOTAL_ORDER + 1) */
+
+typedef struct {
+    int32_t r, m, delay, observer, order, nf, N, pad;
+    double noise_amp[FT_RMAX], quantum[FT_RMAX];
+    double z_gain[FT_OBSMAX], z_pow[FT_OBSMAX], w_gain[FT_OBSMAX], w_pow[FT_OBSMAX];
+    double u_max, rate_max, tau, dead_zone, decay; /* decay = exp(-h / tau) */
+    double period;
+    int32_t noisy, quantized;
+    const double *noise;   /* (samples of the batch, m) unit noise, row = sample of the batch */
+} ft_stage;
+
+static inline double sig_pow(double a, double p) { return np_sign(a) * pow(fabs(a), p); }
+
+/* np.power(x, j) for a small whole j (NumPy's fast paths for 1 and 2, libm's pow otherwise). */
+static inline double int_pow(double x, int j) { return j == 1 ? x : (j == 2 ? x * x : pow(x, (double)j)); }
+
+/* One step of the sampled differentiator (levant.py LevantDifferentiator.step), in place. */
+static void levant_step(const ft_stage *S, double *st, double f) {
+    const int n = S->order, nf = S->nf;
+    const double tau = S->period;
+    double z[FT_OBSMAX] = {0}, out[FT_OBSMAX] = {0};
+    for (int i = 0; i < n + 1 + nf; i++) z[i] = st[i];
+    const double e = nf ? z[n + 1] : z[0] - f;
+    for (int i = 0; i <= n; i++) out[i] = z[i] - tau * S->z_gain[i] * sig_pow(e, S->z_pow[i]);
+    double fact = 1.0;
+    for (int j = 1; j <= n; j++) {
+        fact *= j;
+        const double c = int_pow(tau, j) / fact;
+        for (int i = 0; i <= n - j; i++) out[i] += c * z[i + j];
+    }
+    for (int j = 0; j < nf; j++) {
+        const double drive = j + 1 < nf ? z[n + 2 + j] : z[0] - f;
+        out[n + 1 + j] = z[n + 1 + j] + tau * (drive - S->w_gain[j] * sig_pow(e, S->w_pow[j]));
+    }
+    for (int i = 0; i < n + 1 + nf; i++) st[i] = out[i];
+}
+
+/* LoopStages.measure: sample k (row of the batch), true z (r,) -> z_meas (m,), z_hat (r,); state updated. */
+static void stage_measure(const ft_stage *S, int64_t k, int64_t row, const double *z, double *state,
+                          double *zm, double *zh) {
+    const int m = S->m, d = S->delay;
+    double y[FT_RMAX];
+    for (int c = 0; c < m; c++) {
+        double v = z[c];
+        if (S->noisy) v += S->noise_amp[c] * S->noise[row * m + c];
+        if (S->quantized && S->quantum[c] > 0.0) v = S->quantum[c] * nearbyint(v / S->quantum[c]);
+        y[c] = v;
+    }
+    double *line = state, *obs = state + d * m;
+    if (k == 0)
+        for (int q = 0; q < d; q++)
+            for (int c = 0; c < m; c++) line[q * m + c] = y[c];
+    if (d) {
+        for (int c = 0; c < m; c++) zm[c] = line[c];
+        for (int q = 0; q + 1 < d; q++)
+            for (int c = 0; c < m; c++) line[q * m + c] = line[(q + 1) * m + c];
+        for (int c = 0; c < m; c++) line[(d - 1) * m + c] = y[c];
+    } else {
+        for (int c = 0; c < m; c++) zm[c] = y[c];
+    }
+    if (!S->observer) {
+        for (int c = 0; c < m; c++) zh[c] = zm[c];
+        return;
+    }
+    if (k == 0) {
+        obs[0] = zm[0];
+        for (int i = 1; i < S->order + 1 + S->nf; i++) obs[i] = 0.0;
+    }
+    for (int i = 0; i < S->r; i++) zh[i] = obs[i];
+    levant_step(S, obs, zm[0]);
+}
+
+/* LoopStages.actuate: the law's u at sample k -> the plant's input at each of the N steps; state updated.
+ * Returns u_applied (the input at the first step). */
+static double stage_actuate(const ft_stage *S, int64_t k, double u, double *state, double *steps) {
+    double *act = state + S->delay * S->m + (S->observer ? S->order + 1 + S->nf : 0);
+    if (k == 0) act[0] = act[1] = 0.0;
+    if (S->dead_zone != 0.0) u = copysign(fmax(fabs(u) - S->dead_zone, 0.0), u);
+    if (S->u_max != INFINITY) u = fmin(fmax(u, -S->u_max), S->u_max);
+    if (S->rate_max != INFINITY) {
+        const double step = S->rate_max * S->period, prev = act[0];
+        u = fmin(fmax(u, prev - step), prev + step);
+    }
+    if (S->tau == 0.0) {
+        for (int s = 0; s < S->N; s++) steps[s] = u;
+        act[0] = act[1] = u;
+    } else {
+        const double a0 = act[1];
+        for (int s = 0; s < S->N; s++) steps[s] = u + (a0 - u) * pow(S->decay, (double)s);
+        act[0] = u;
+        act[1] = u + (a0 - u) * pow(S->decay, (double)S->N);
+    }
+    return steps[0];
+}
+
+/* Test entry points: n consecutive samples k0.. of one loop (z (n, r) true states, u (n,) law outputs). */
+void ft_stage_measure(const ft_stage *S, int64_t k0, int64_t n, const double *z, double *state, double *zm,
+                      double *zh) {
+    for (int64_t j = 0; j < n; j++)
+        stage_measure(S, k0 + j, j, z + j * S->r, state, zm + j * S->m, zh + j * S->r);
+}
+
+void ft_stage_actuate(const ft_stage *S, int64_t k0, int64_t n, const double *u, double *state, double *steps) {
+    for (int64_t j = 0; j < n; j++) stage_actuate(S, k0 + j, u[j], state, steps + j * S->N);
+}
+
+int64_t ft_stage_size(void) { return (int64_t)sizeof(ft_stage); }
+
 /* ---- the control callback of the MuJoCo run loop (ftstab_mj/sim.py, native path) ----------------
  *
  * The C twin of Simulation._sample plus the per-step input writes of Simulation.advance, so that a

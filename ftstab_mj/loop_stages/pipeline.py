@@ -1,0 +1,98 @@
+"""One loop's stages put together, as the run loop calls them once per control sample.
+
+    stages = LoopStages(sensor, observer, actuator, r=2, period=0.01, physics_step=0.001, stream=0)
+    z_measured, z_hat = stages.measure(z_true, k, state)     # before the law
+    u_applied, per_step = stages.actuate(u, state)           # after the law: the plant's input per physics step
+
+``state`` is the loop's flat stage state (``state_size`` floats, updated in place), which the run
+loop keeps in MuJoCo's ``userdata`` so that a saved and restored run goes on exactly. Layout:
+the sensor's delay line, then the observer's state, then the actuator's (2). At sample k = 0 the
+delay line and the observer start from the first reading (whatever the state held), so a run
+restored to its start begins the same way.
+
+The observer runs at the control rate, and the law at sample k uses its estimate at t_k, which
+depends on the readings up to sample k - 1 (Livne & Levant's discrete differentiator predicts
+z(t_(k+1)) from z(t_k) and the reading at t_k). Without an observer the law uses the reading.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ftstab_mj.errors import ParameterError
+from ftstab_mj.loop_stages.actuator import STATE_SIZE as ACTUATOR_STATE, ActuatorModel
+from ftstab_mj.loop_stages.levant import LevantDifferentiator
+from ftstab_mj.loop_stages.sensor import SensorModel
+
+
+@dataclass(frozen=True)
+class LoopStages:
+    """sensor, observer (LevantDifferentiator or None), actuator of a loop of chain length r.
+
+    period: control period (s); N: physics steps per period; stream: the loop's noise stream.
+    """
+
+    sensor: SensorModel
+    observer: LevantDifferentiator | None
+    actuator: ActuatorModel
+    r: int
+    period: float
+    N: int
+    stream: int = 0
+
+    def __post_init__(self):
+        self.sensor.check(self.r)
+        if self.observer is None and self.sensor.measured != "state":
+            raise ParameterError("observer", 'an observer when the sensor measures only the position', None)
+        if self.observer is not None:
+            if self.sensor.measured != "position":
+                raise ParameterError("sensor.measured", '"position" with an observer (it rebuilds z_2..z_r)',
+                                     self.sensor.measured)
+            if self.observer.order < self.r - 1:
+                raise ParameterError("observer.order", f"an order >= r - 1 = {self.r - 1}", self.observer.order)
+        m = self.sensor.channels(self.r)
+        d = self.sensor.state_size(self.r)
+        o = self.observer.state_size if self.observer else 0
+        object.__setattr__(self, "_m", m)
+        object.__setattr__(self, "_slices", (slice(0, d), slice(d, d + o), slice(d + o, d + o + ACTUATOR_STATE)))
+
+    @property
+    def ideal(self) -> bool:
+        """True when every stage is the identity: the run loop then skips them (today's runs)."""
+        return self.sensor.ideal and self.observer is None and self.actuator.ideal
+
+    @property
+    def state_size(self) -> int:
+        return self._slices[2].stop
+
+    @property
+    def channels(self) -> int:
+        return self._m
+
+    def measure(self, z_true, k: int, state) -> tuple[np.ndarray, np.ndarray]:
+        """(z_measured (m,), z_hat (r,)) at sample k from the true z (r,); advances the delay line
+        and the observer in ``state``."""
+        line, obs, _ = self._slices
+        y = self.sensor.reading(z_true, k, self.stream)
+        if k == 0:
+            state[line] = self.sensor.initial_state(y)
+        z_meas, state[line] = self.sensor.delayed(state[line], y)
+        if self.observer is None:
+            return z_meas, z_meas
+        if k == 0:
+            state[obs] = self.observer.initial_state(z_meas[0])
+        z_hat = self.observer.estimate(state[obs])[:self.r].copy()
+        state[obs] = self.observer.step(state[obs], z_meas[0], self.period)
+        return z_meas, z_hat
+
+    def actuate(self, u: float, k: int, state, physics_step: float) -> tuple[float, np.ndarray]:
+        """(u_applied, the plant's input at each of the N physics steps (N,)) for the law's u at
+        sample k; advances the actuator's state (at rest, 0, before sample 0)."""
+        act = self._slices[2]
+        if k == 0:
+            state[act] = self.actuator.initial_state()
+        u_c = self.actuator.command(u, state[act], self.period)
+        steps, state[act] = self.actuator.steps(u_c, state[act], physics_step, self.N)
+        return float(steps[0]), steps
