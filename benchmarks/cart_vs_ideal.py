@@ -26,7 +26,7 @@ GAMMA = Signal("sine", offset=1.0, amplitude=0.2, freq=0.5)
 def discrepancy(r, period, N, integrator, duration=6.0):
     law = RobustLaw(HONG[r], phibar=0.5, gamma_m=0.8)
     z0 = np.array((1.0,) + (0.0,) * (r - 1))
-    res = simulate(make_plant(MODEL[r], {"mass": 2.0}), [LoopSpec("cart", law, PHI, GAMMA, tuple(z0))],
+    res = simulate(make_plant(MODEL[r], {"mass": 2.0}), [LoopSpec("cart", controller=law, disturbance=PHI, gain=GAMMA, z0=tuple(z0))],
                    duration=duration, period=period, physics_step=period / N, integrator=integrator)
     chain = simulate_chain(law, z0, period, duration, PHI, GAMMA, substeps=N)
     diff = np.abs(res.loops["cart"]["z"] - chain.z)

@@ -57,8 +57,8 @@ def law(kind: str, r: int):
 
 
 def loops(kind: str, r: int):
-    return [LoopSpec("cart", law(kind, r), phi=Signal("sine", 0.0, 0.8, freq=0.5),
-                     gamma=Signal("sine", 1.0, 0.4, freq=0.3, phase=1.0), z0=(1.0,) + (0.0,) * (r - 1))]
+    return [LoopSpec("cart", controller=law(kind, r), disturbance=Signal("sine", 0.0, 0.8, freq=0.5),
+                     gain=Signal("sine", 1.0, 0.4, freq=0.3, phase=1.0), z0=(1.0,) + (0.0,) * (r - 1))]
 
 
 class Clock:

@@ -155,6 +155,8 @@ def cmd_check(args) -> int:
         print(f"  {o.line}")
     return 1
 def cmd_list(args) -> int:
+    from ftstab_mj.control import LAWS
+    from ftstab_mj.plants import PLANTS
     from ftstab_mj.scenario import SCENARIO_DIR, shipped_scenarios
 
     rows = shipped_scenarios()
@@ -162,6 +164,15 @@ def cmd_list(args) -> int:
     for name, _, description in rows:
         print(f"{name:<{width}}  {description}")
     print(f"\n{len(rows)} scenarios in {SCENARIO_DIR}; run one with: ftstab run NAME [--set key.path=value]")
+    print("\nlaws (loops.<name>.controller.law) and their keys:")
+    for cls in LAWS.values():
+        print(f"  {cls.name}: {cls.summary}")
+        for p in cls.all_params():
+            default = "" if p.required else f" [default {p.default!r}]"
+            print(f"      {p.name}: {p.describe()}{default}")
+    print("\nplants (plant.model):")
+    for entry in PLANTS.values():
+        print(f"  {entry.name}: {entry.summary}")
     return 0
 
 
@@ -320,8 +331,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="print the metrics as JSON (the /metrics message of the log) instead of the table")
     r.set_defaults(func=cmd_run)
 
-    ls = sub.add_parser("list", help="the shipped scenarios with their descriptions",
-                        description="List the scenarios shipped in scenarios/ with their one-line descriptions.")
+    ls = sub.add_parser("list", help="the shipped scenarios, the control laws and the plants",
+                        description="List the scenarios shipped in scenarios/ with their one-line descriptions, "
+                                    "then the registered control laws with their scenario keys, then the plants.")
     ls.set_defaults(func=cmd_list)
 
     w = sub.add_parser(

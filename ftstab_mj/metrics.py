@@ -87,6 +87,8 @@ def time_bound(loop, V1_0):
 
     None when the certificate does not hold (c <= 0, or the simplified form, which has none).
     """
+    if not loop.hong:  # a law not built on Hong's controller: Theorem 1 says nothing
+        return None
     cert = loop_certificate(loop)
     if not cert.certified or not math.isfinite(V1_0):
         return None
@@ -153,8 +155,10 @@ def theorem3_check(loop, V1_final, phi_hat_final):
     """
     from ftstab_mj.control import theorem3_bounds
 
+    if loop.law != "adaptive":
+        return None
     cert = loop_certificate(loop)
-    if loop.law != "adaptive" or not cert.certified or not _is_finite_number(loop.true_phibar):
+    if not cert.certified or not _is_finite_number(loop.true_phibar):
         return None  # (an unbounded plant, e.g. a damped cart, gives Theorem 3 nothing to check)
     p = loop.law_params
     b = theorem3_bounds(cert, loop.true_phibar, loop.true_gamma_m, p["kappa"], p["delta"], p["rate"], p["eps"])

@@ -1,9 +1,8 @@
 """The run loop: a plant under the paper's controllers, the controller in MuJoCo's control callback.
 
     plant = make_plant("cart", {"mass": 2.0})
-    loops = [LoopSpec("cart", RobustLaw(hong, phibar=0.5, gamma_m=0.8),
-                      phi=Signal("sine", amplitude=0.5, freq=1.0), gamma=Signal("constant", 1.0),
-                      z0=(1.0, 0.0))]
+    loops = [LoopSpec("cart", z0=(1.0, 0.0), controller=RobustLaw(hong, phibar=0.5, gamma_m=0.8),
+                      disturbance=Signal("sine", amplitude=0.5, freq=1.0), gain=Signal("constant", 1.0))]
     result = simulate(plant, loops, duration=5.0, period=0.01, physics_step=0.001, sinks=[...])
 
 Timing. The control period is N physics steps (N integer, checked). Sample k is taken at
@@ -13,18 +12,23 @@ its first forward pass, where position and velocity sensors are fresh) evaluates
 writes the control and records the sample. Every other callback call (the rest of the steps, the
 RK4 stages, stray forward passes) returns at once, so the control is held over the period whatever
 the integrator. The per-step inputs (gain factor, injected disturbance; plants/base.py) are written
-by the loop before each step. The per-sample computation is :meth:`Simulation._sample` (reads z,
-law.output, writes ctrl).
+by the loop before each step.
+
+The per-sample pipeline is :meth:`Simulation._sample`: read z (``_read_z``: the plant's sensors
+minus the set points) -> every loop's law (``law.evaluate``, state advanced with ``law.advance``)
+-> u -> inject (``_inject``: ctrl = gain u, the disturbance force). A per-loop stage (sensor
+model, observer, actuator model) slots in between two of these steps, in that one method.
 
 Native path (``native=True | "auto"``, the default "auto"): the same per-sample and per-step work
 done by a C callback (ftstab_mj/native/run.py, kernel.c) so that a whole batch runs in one
 ``mj_step(m, d, nstep)``; it records the same samples (to rounding: tests/test_native_sim.py).
 "auto" uses it when the kernel is built and the simulation is one it handles (Euler or
-implicitfast, a plant with a native sensor map, the three laws), and Python otherwise.
+implicitfast, a plant with a native sensor map, laws with a ``native_code``), and Python otherwise.
 
-State. The adaptive phi_hat is integrated exactly once per period (``advance_phi_hat``, V1 held)
-and lives in MuJoCo's ``userdata``, so ``mj_getState(mjSTATE_INTEGRATION)`` (which also holds
-qpos, qvel, act, ctrl, qfrc_applied and time) saves the whole run state between samples.
+State. Each law's own state (``law.state_size`` numbers: the adaptive law's phi_hat, none for the
+others) is advanced exactly once per period (``law.advance``, z held) and lives in MuJoCo's
+``userdata`` (loop i at ``Simulation.state_slices[i]``), so ``mj_getState(mjSTATE_INTEGRATION)``
+(which also holds qpos, qvel, act, ctrl, qfrc_applied and time) saves the whole run state.
 
 Outcomes. A run ends "completed", "diverged" (NaN or |z| beyond ``divergence_limit`` at a sample,
 a MuJoCo warning), or "interrupted" (Ctrl-C); in every case the sinks get what was recorded and
@@ -35,45 +39,24 @@ installed before the run is always put back (:func:`control_callback`).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import mujoco
 import numpy as np
 
 from ftstab_mj import native as native_path
 from ftstab_mj.callback import control_callback, slot_owner
-from ftstab_mj.control.laws import AdaptiveLaw, NominalLaw, RobustLaw, advance_phi_hat
-from ftstab_mj.disturbances import Signal
 from ftstab_mj.errors import CallbackError, ParameterError
 from ftstab_mj.native import run as native_run
 from ftstab_mj.plants.base import Plant
 from ftstab_mj.records import (COMPLETED, DIVERGED, FAILED, INTERRUPTED, LOOP_FIELDS, LoopInfo,
                                MetricSettings, RunInfo, SampleBatch)
+from ftstab_mj.scenario.schema import LoopSpec
 
 # MuJoCo warnings that mean the simulation blew up (MuJoCo resets the data when they fire).
 _DIVERGENCE_WARNINGS = (mujoco.mjtWarning.mjWARN_BADQPOS, mujoco.mjtWarning.mjWARN_BADQVEL,
                         mujoco.mjtWarning.mjWARN_BADQACC, mujoco.mjtWarning.mjWARN_BADCTRL)
 _SCALARS = tuple(f for f in LOOP_FIELDS if f not in ("t", "z"))
-
-
-@dataclass(frozen=True)
-class LoopSpec:
-    """One control loop on one actuated joint of a plant.
-
-    name: the plant's loop name ("cart"; "joint0", "joint1", ... for the arm).
-    law: NominalLaw | RobustLaw | AdaptiveLaw, with law.hong.r equal to the plant's r.
-    phi: injected disturbance signal (units: see the plant, chain units for the cart).
-    gamma: actuator gain factor signal (chain units for the cart; must not be state dependent).
-    z0: initial chain state (r,), z0[0] = q(0) - ref; empty means zeros.
-    ref: set point of the joint position (m or rad): z_1 = q - ref.
-    """
-
-    name: str
-    law: object
-    phi: Signal = field(default_factory=lambda: Signal("constant", 0.0))
-    gamma: Signal = field(default_factory=lambda: Signal("constant", 1.0))
-    z0: tuple = ()
-    ref: float = 0.0
 
 
 @dataclass
@@ -91,22 +74,6 @@ class RunResult:
     @property
     def n_samples(self) -> int:
         return int(len(next(iter(self.loops.values()))["t"]))
-
-
-def law_kind(law) -> str:
-    """"nominal" | "robust" | "adaptive" (RunInfo naming)."""
-    for cls, name in ((NominalLaw, "nominal"), (RobustLaw, "robust"), (AdaptiveLaw, "adaptive")):
-        if isinstance(law, cls):
-            return name
-    return type(law).__name__
-
-
-def _law_params(law) -> dict:
-    if isinstance(law, RobustLaw):
-        return {"phibar": law.phibar, "gamma_m": law.gamma_m}
-    if isinstance(law, AdaptiveLaw):
-        return {k: getattr(law, k) for k in ("kappa", "delta", "rate", "eta", "eps")}
-    return {}
 
 
 def steps_per_period(period: float, physics_step: float) -> int:
@@ -134,10 +101,14 @@ class Simulation:
             raise ParameterError("divergence_limit", "a number > 0", divergence_limit)
         self.divergence_limit = float(divergence_limit)
         self.plant = plant
-        self.loops = self._check_loops(plant, loops)
-        self.laws = tuple(L.law for L in self.loops)
+        self.loops, self.laws = self._check_loops(plant, loops)
         n, r = plant.n, plant.r
-        self.model, self.data, self.model_xml = plant.compile(physics_step, integrator)
+        # each law's state in userdata: loop i at state_slices[i]
+        ends = np.cumsum([0] + [law.state_size for law in self.laws])
+        self.state_slices = tuple(slice(int(a), int(b)) for a, b in zip(ends[:-1], ends[1:]))
+        self.model, self.data, self.model_xml = plant.compile(physics_step, integrator, nuserdata=int(ends[-1]))
+        for law, sl in zip(self.laws, self.state_slices):
+            self.data.userdata[sl] = law.initial_state()
         self.integrator = integrator
         self.refs = np.array([float(L.ref) for L in self.loops])
         z0 = np.array([L.z0 if len(L.z0) else np.zeros(r) for L in self.loops], dtype=float)
@@ -167,14 +138,15 @@ class Simulation:
             if native is True:
                 raise native_path.NativeUnavailable(f"native=True but {why}")
             return None
-        return native_run.NativeRun(self.model, self.data, self.plant, self.loops, self.laws, self.refs,
-                                    self._force_factor, self._body_ids, self.period, self.physics_step, self.N,
+        return native_run.NativeRun(self.model, self.data, self.plant, self.loops, self.laws, self.state_slices,
+                                    self.refs, self._force_factor, self._body_ids, self.period, self.physics_step, self.N,
                                     self.divergence_limit)
 
     @staticmethod
-    def _check_loops(plant: Plant, loops) -> tuple:
+    def _check_loops(plant: Plant, loops) -> tuple[tuple, tuple]:
+        """(loops, laws) in the plant's loop order; ParameterError naming the loop otherwise."""
         loops = tuple(loops)
-        by_name = {}
+        by_name, laws = {}, {}
         for L in loops:
             if not isinstance(L, LoopSpec):
                 raise ParameterError("loops", "LoopSpec entries", L)
@@ -182,29 +154,28 @@ class Simulation:
                 raise ParameterError("loops.name", f"a loop of {plant.model_name!r} ({', '.join(plant.loop_names)})", L.name)
             if L.name in by_name:
                 raise ParameterError(f"loops.{L.name}", "one LoopSpec per loop", "a duplicate")
-            r = getattr(getattr(L.law, "hong", None), "r", None)
-            if r != plant.r:
-                raise ParameterError(f"loops.{L.name}.law", f"a law whose Hong controller has r = {plant.r}", r)
+            law = L.law(plant.r)
+            if getattr(law, "r", None) != plant.r:
+                raise ParameterError(f"loops.{L.name}.controller", f"a law for chain length r = {plant.r}",
+                                     getattr(law, "r", law))
             if len(L.z0) not in (0, plant.r) or not np.all(np.isfinite(np.asarray(L.z0, dtype=float))):
                 raise ParameterError(f"loops.{L.name}.z0", f"{plant.r} finite numbers", L.z0)
-            if L.gamma.state_dependent:
-                raise ParameterError(f"loops.{L.name}.gamma", "a signal that is not state dependent", L.gamma.kind)
-            by_name[L.name] = L
+            if L.gain.state_dependent:
+                raise ParameterError(f"loops.{L.name}.gain", "a signal that is not state dependent", L.gain.kind)
+            by_name[L.name], laws[L.name] = L, law
         missing = [name for name in plant.loop_names if name not in by_name]
         if missing:
             raise ParameterError("loops", f"a LoopSpec for every loop of {plant.model_name!r}", f"none for {missing}")
-        return tuple(by_name[name] for name in plant.loop_names)
+        return tuple(by_name[name] for name in plant.loop_names), tuple(laws[name] for name in plant.loop_names)
 
     # -- description ------------------------------------------------------------------------------
     def run_info(self, scenario: dict | None = None, metric_settings: MetricSettings | None = None) -> RunInfo:
-        phibar, gm, gM = self.plant.true_bounds([L.phi.bounds() for L in self.loops],
-                                                [L.gamma.bounds() for L in self.loops])
+        phibar, gm, gM = self.plant.true_bounds([L.disturbance.bounds() for L in self.loops],
+                                                [L.gain.bounds() for L in self.loops])
         infos = []
-        for i, L in enumerate(self.loops):
-            h = L.law.hong
-            infos.append(LoopInfo(name=L.name, r=h.r, law=law_kind(L.law),
-                                  hong={"r": h.r, "k": h.k, "gains": list(h.gains), "form": h.form},
-                                  law_params=_law_params(L.law), true_phibar=float(phibar[i]),
+        for i, (L, law) in enumerate(zip(self.loops, self.laws)):
+            infos.append(LoopInfo(name=L.name, r=law.r, law=law.name, hong=law.base_info(),
+                                  law_params=law.param_values(), true_phibar=float(phibar[i]),
                                   true_gamma_m=float(gm[i]), true_gamma_M=float(gM[i]),
                                   workspace=self.plant.loop_workspace(i, float(L.ref))))
         return RunInfo(scenario=dict(scenario or {}), loops=tuple(infos), period=self.period,
@@ -217,7 +188,7 @@ class Simulation:
         return float(self.data.time)
 
     def get_state(self) -> np.ndarray:
-        """The full integration state (qpos, qvel, act, ctrl, qfrc_applied, userdata = phi_hat, time)."""
+        """The full integration state (qpos, qvel, act, ctrl, qfrc_applied, userdata = the laws' states, time)."""
         spec = mujoco.mjtState.mjSTATE_INTEGRATION
         state = np.empty(mujoco.mj_stateSize(self.model, spec))
         mujoco.mj_getState(self.model, self.data, state, spec)
@@ -250,9 +221,9 @@ class Simulation:
         self._inj = np.empty((n_samples * N, n))  # injected phi at each step (state-dependent: filled at samples)
         self._gain = np.empty((n_samples * N, n))
         for i, L in enumerate(self.loops):
-            if not L.phi.state_dependent:
-                self._inj[:, i] = L.phi(ts)
-            self._gain[:, i] = L.gamma(ts)
+            if not L.disturbance.state_dependent:
+                self._inj[:, i] = L.disturbance(ts)
+            self._gain[:, i] = L.gain(ts)
         # Per step, what the loop writes: the generalized force (r = 2) or its increment over the
         # step (integrating plants: F_d' = scale phi held over the step), and ctrl (filled at samples).
         self._force = self._inj * self._force_factor
@@ -346,31 +317,42 @@ class Simulation:
             raise CallbackError(f"control callback failed at t = {d.time:.6g} s: {type(exc).__name__}: {exc}") from exc
 
     def _sample(self, m, d) -> None:
-        """One control sample: read z, evaluate every law, write ctrl (and the disturbance), record."""
-        row, s, n = self._row + 1, self._s, self.plant.n
+        """One control sample, the per-sample pipeline: read z -> each loop's law -> u -> inject, record.
+        A stage acting on z (sensor, observer) or on u (actuator) goes between two of these steps."""
+        row = self._row + 1
+        t = self._t[row]
+        z = self._read_z(d)
+        zmax = float(np.max(np.abs(z)))
+        if not zmax <= self.divergence_limit:  # also catches NaN
+            self._stop(d, f"diverged at t = {t:.6g} s: max |z| = {zmax:.3g} is beyond the divergence "
+                          f"limit {self.divergence_limit:g}")
+            return
+        if not self._control_laws(d, z, row, t):
+            return
+        self._inject(m, d, row)
+
+    def _read_z(self, d) -> np.ndarray:
+        """The chain states (n, r) the laws see: the plant's sensors, z_1 relative to the set point."""
         z = self._z
         self.plant.sense(d, z)
         z[:, 0] -= self.refs
-        t = self._t[row]
-        zmax = float(np.max(np.abs(z)))
-        if not zmax <= self.divergence_limit:  # also catches NaN
-            self.stop_reason = (f"diverged at t = {t:.6g} s: max |z| = {zmax:.3g} is beyond the divergence "
-                                f"limit {self.divergence_limit:g}")
-            d.ctrl[:n] = 0.0
-            return
-        ud = d.userdata
-        for i, (law, L, rec) in enumerate(zip(self.laws, self.loops, self._rec)):
-            phi_hat = ud[i]
-            out = law.output(z[i], phi_hat)
-            if L.phi.state_dependent:  # worst case: held over the period with this sample's dV1/dz_r
-                value = float(L.phi(t, out.dV1_dzr))
+        return z
+
+    def _control_laws(self, d, z, row: int, t: float) -> bool:
+        """Evaluate every loop's law at z, record its outputs, advance its state; u -> self._u.
+        False (and the run stopped) when a control is not finite."""
+        s, ud = self._s, d.userdata
+        for i, (law, L, rec, sl) in enumerate(zip(self.laws, self.loops, self._rec, self.state_slices)):
+            state = ud[sl]
+            out = law.evaluate(z[i], state)
+            if L.disturbance.state_dependent:  # worst case: held over the period with this sample's dV1/dz_r
+                value = float(L.disturbance(t, out.dV1_dzr))
                 self._inj[s:s + self.N, i] = value
                 self._force[s:s + self.N, i] = value * self._force_factor[i]
             u = float(out.u)
             if not np.isfinite(u):
-                self.stop_reason = f"diverged at t = {t:.6g} s: the control of loop {L.name!r} is {u}"
-                d.ctrl[:n] = 0.0
-                return
+                self._stop(d, f"diverged at t = {t:.6g} s: the control of loop {L.name!r} is {u}")
+                return False
             self._u[i] = u
             rec["t"][row] = t
             rec["z"][row] = z[i]
@@ -380,7 +362,13 @@ class Simulation:
             rec["dV1_dzr"][row] = out.dV1_dzr
             rec["phi_hat"][row] = out.phi_hat  # the law's (robust: phibar / gamma_m), as the ideal chain logs it
             rec["gamma_hat"][row] = out.gamma_hat
-            ud[i] = advance_phi_hat(law, out.V1, phi_hat, self.period)
+            ud[sl] = law.advance(z[i], state, out, self.period)
+        return True
+
+    def _inject(self, m, d, row: int) -> None:
+        """Write the held control (ctrl = gain u) and the disturbance force; record the true phi,
+        gamma and the body poses of this sample."""
+        s, n = self._s, self.plant.n
         self._ctrl[s:s + self.N] = self._gain[s:s + self.N] * self._u  # held u times each step's gain
         d.ctrl[:n] = self._ctrl[s]
         if not self.plant.integrating:
@@ -392,6 +380,11 @@ class Simulation:
         self._pos[row] = d.xpos[self._body_ids]
         self._quat[row] = d.xquat[self._body_ids]
         self._row = row
+
+    def _stop(self, d, reason: str) -> None:
+        """Stop the run at this sample (diverged): no control, nothing recorded."""
+        self.stop_reason = reason
+        d.ctrl[:self.plant.n] = 0.0
 
 
 def sample_count(duration: float, period: float) -> int:

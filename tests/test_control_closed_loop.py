@@ -202,7 +202,7 @@ def test_advance_phi_hat_transition_band_matches_fine_reference():
     got = advance_phi_hat(law, V1, phi0, 0.01)
     ref = phi0.copy()
     for _ in range(100_000):  # explicit Euler, 1e-7 s steps: error ~1e-7
-        ref = ref + 1e-7 * law.state_derivative(V1, ref)
+        ref = ref + 1e-7 * law.phi_hat_rate(V1, ref)
     np.testing.assert_allclose(got, ref, rtol=0, atol=1e-6)
 
 

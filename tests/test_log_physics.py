@@ -28,7 +28,7 @@ def test_logged_cart_samples_match_the_chain_dynamics(tmp_path):
     h, dt = 0.005, 0.001
     phi = Signal("sine", amplitude=0.8, freq=0.5)
     gamma = Signal("sine", offset=1.0, amplitude=0.4, freq=0.3, phase=1.0)
-    loops = [LoopSpec("cart", RobustLaw(HONG, phibar=1.0, gamma_m=0.5), phi=phi, gamma=gamma, z0=(1.0, 0.0))]
+    loops = [LoopSpec("cart", controller=RobustLaw(HONG, phibar=1.0, gamma_m=0.5), disturbance=phi, gain=gamma, z0=(1.0, 0.0))]
     path = tmp_path / "cart.mcap"
     simulate(make_plant("cart", {"mass": 2.0}), loops, duration=3.0, period=h, physics_step=dt,
              sinks=[McapSink(path)], batch_size=200, metrics=compute_metrics)
@@ -60,7 +60,7 @@ def _replay(mcap):
 
 def test_diverged_run_leaves_a_complete_log_that_says_so(tmp_path):
     # A constant push of 50 m/s^2 against the nominal law leaves |z| <= 3 (divergence limit) fast.
-    loops = [LoopSpec("cart", NominalLaw(HONG), phi=Signal("constant", 50.0), z0=(1.0, 0.0))]
+    loops = [LoopSpec("cart", controller=NominalLaw(HONG), disturbance=Signal("constant", 50.0), z0=(1.0, 0.0))]
     result, mcap, _ = _run(tmp_path, loops, divergence_limit=3.0)
     assert result.status == DIVERGED
     log = read_log(mcap)
@@ -88,7 +88,7 @@ class _CtrlC:
 
 
 def test_interrupted_run_is_finalized_with_its_status(tmp_path):
-    loops = [LoopSpec("cart", NominalLaw(HONG), z0=(1.0, 0.0))]
+    loops = [LoopSpec("cart", controller=NominalLaw(HONG), z0=(1.0, 0.0))]
     calls = []
     mcap = tmp_path / "run.mcap"
     result = simulate(make_plant("cart"), loops, duration=1.0, period=0.01, physics_step=0.01,
@@ -103,14 +103,14 @@ def test_interrupted_run_is_finalized_with_its_status(tmp_path):
 class _Broken(NominalLaw):
     """Hong's law that raises once |x| < 0.95 m (a bug in a user's controller)."""
 
-    def output(self, z, phi_hat=0.0):
+    def evaluate(self, z, state):
         if abs(z[0]) < 0.95:
             raise ZeroDivisionError("bug in the controller")
-        return super().output(z, phi_hat)
+        return super().evaluate(z, state)
 
 
 def test_failed_run_leaves_a_readable_log_with_status_failed(tmp_path):
-    loops = [LoopSpec("cart", _Broken(HONG), z0=(1.0, 0.0))]
+    loops = [LoopSpec("cart", controller=_Broken(HONG), z0=(1.0, 0.0))]
     with pytest.raises(CallbackError):
         _run(tmp_path, loops)
     mcap = tmp_path / "run.mcap"

@@ -28,8 +28,7 @@ HONG = {2: HongController(2, -0.2, (1.0, 2.0)), 3: HongController(3, -0.1, (1.0,
 
 def loop(r, law_kind, phi, z0=None):
     law = RobustLaw(HONG[r], 0.5, 0.8) if law_kind == "robust" else AdaptiveLaw(HONG[r], 1.0, 0.5, 2.0, 0.5, 0.05)
-    return LoopSpec("cart", law, phi=phi, gamma=Signal("sine", 1.0, 0.2, freq=0.5),
-                    z0=z0 or ((1.0, 0.0) if r == 2 else (1.0, 0.0, 0.0)))
+    return LoopSpec("cart", controller=law, disturbance=phi, gain=Signal("sine", 1.0, 0.2, freq=0.5), z0=z0 or ((1.0, 0.0) if r == 2 else (1.0, 0.0, 0.0)))
 
 
 def assert_same_run(ref, fast):

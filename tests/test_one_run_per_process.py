@@ -36,7 +36,7 @@ LAW = RobustLaw(HongController(2, -0.2, (1.0, 2.0)), phibar=0.5, gamma_m=0.8)
 
 
 def cart_sim(native_path="auto", amplitude=0.4):
-    loops = [LoopSpec("cart", LAW, phi=Signal("sine", amplitude=amplitude, freq=1.0), z0=(1.0, 0.0))]
+    loops = [LoopSpec("cart", controller=LAW, disturbance=Signal("sine", amplitude=amplitude, freq=1.0), z0=(1.0, 0.0))]
     return Simulation(make_plant("cart"), loops, period=0.01, physics_step=0.001, native=native_path)
 
 

@@ -87,8 +87,7 @@ def test_recorded_phi_and_gamma_are_the_joint_accelerations():
     velocity increment is h (M + h B)^-1 (...) and differs from h qacc by O(h)."""
     h = 0.002
     plant = make_plant("arm")
-    loops = [LoopSpec(f"joint{i}", RobustLaw(HONG, phibar=20.0, gamma_m=2.0), PHIS[i], GAINS[i], z0=(-REF[i], 0.5),
-                      ref=REF[i]) for i in range(2)]
+    loops = [LoopSpec(f"joint{i}", controller=RobustLaw(HONG, phibar=20.0, gamma_m=2.0), disturbance=PHIS[i], gain=GAINS[i], z0=(-REF[i], 0.5), ref=REF[i]) for i in range(2)]
     res = simulate(plant, loops, duration=1.0, period=h, physics_step=h)
     for i in range(2):
         s = res.loops[f"joint{i}"]
@@ -98,8 +97,7 @@ def test_recorded_phi_and_gamma_are_the_joint_accelerations():
 
 def test_arm_joints_reach_their_set_points_with_the_robust_law_and_the_computed_bounds(arm):
     plant, (phibar, gm, gM) = arm
-    loops = [LoopSpec(f"joint{i}", RobustLaw(HONG, phibar=phibar[i], gamma_m=gm[i]), PHIS[i], GAINS[i],
-                      z0=(0.0 - REF[i], 0.0), ref=REF[i]) for i in range(2)]
+    loops = [LoopSpec(f"joint{i}", controller=RobustLaw(HONG, phibar=phibar[i], gamma_m=gm[i]), disturbance=PHIS[i], gain=GAINS[i], z0=(0.0 - REF[i], 0.0), ref=REF[i]) for i in range(2)]
     res = simulate(plant, loops, duration=5.0, period=0.002, physics_step=0.001)
     assert res.status == "completed"
     cert = certify(HONG)
@@ -120,7 +118,7 @@ def test_arm_joints_reach_their_set_points_with_the_robust_law_and_the_computed_
 def test_leaving_the_workspace_is_reported(arm):
     """The same set point with a too small torque budget (u_max) and a set point beyond q_max."""
     plant = make_plant("arm", {"u_max": [5.0, 1.0], "q_max": [0.4, 0.6]})
-    loops = [LoopSpec(f"joint{i}", RobustLaw(HONG, phibar=10.0, gamma_m=1.0), z0=(0.0 - REF[i], 0.0), ref=REF[i])
+    loops = [LoopSpec(f"joint{i}", controller=RobustLaw(HONG, phibar=10.0, gamma_m=1.0), z0=(0.0 - REF[i], 0.0), ref=REF[i])
              for i in range(2)]
     res = simulate(plant, loops, duration=3.0, period=0.01, physics_step=0.001)
     m = compute_metrics(res.info, res.loops, res.status)["loops"]

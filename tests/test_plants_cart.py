@@ -37,7 +37,7 @@ GAMMA = Signal("sine", offset=1.0, amplitude=0.2, freq=0.5)
 def _both(r, period, N, integrator, phi=PHI, duration=6.0, mass=2.0):
     """(MuJoCo samples, ideal chain run) for the robust law on the cart with mass `mass`."""
     law = RobustLaw(HONG[r], phibar=0.5, gamma_m=0.8)
-    res = simulate(make_plant(MODEL[r], {"mass": mass}), [LoopSpec("cart", law, phi, GAMMA, Z0[r])],
+    res = simulate(make_plant(MODEL[r], {"mass": mass}), [LoopSpec("cart", controller=law, disturbance=phi, gain=GAMMA, z0=Z0[r])],
                    duration=duration, period=period, physics_step=period / N, integrator=integrator)
     assert res.status == "completed"
     chain = simulate_chain(law, np.array(Z0[r]), period, duration, phi, GAMMA, substeps=N)
@@ -81,7 +81,7 @@ def test_r3_accelerometer_delay_is_zero_with_refresh_and_one_physics_step_withou
     residual = {}
     for refresh in (True, False):
         res = simulate(make_plant("cart_integrating", {"mass": 2.0, "sensor_refresh": refresh}),
-                       [LoopSpec("cart", law, PHI, GAMMA, Z0[3])], duration=1.0, period=h, physics_step=h)
+                       [LoopSpec("cart", controller=law, disturbance=PHI, gain=GAMMA, z0=Z0[3])], duration=1.0, period=h, physics_step=h)
         s = res.loops["cart"]
         w = s["phi"] + s["gamma"] * s["u"]
         dz3 = np.diff(s["z"][:, 2])
@@ -109,7 +109,7 @@ def test_robust_law_stabilizes_the_cart_within_the_theorem_1_time(r, phi):
     Sampled at 5 ms the closed loop reaches a chattering band instead: V1 <= 1e-3 before T and
     stays there over the last 20 % of the run."""
     law = RobustLaw(HONG[r], phibar=0.5, gamma_m=0.8)
-    res = simulate(make_plant(MODEL[r], {"mass": 2.0}), [LoopSpec("cart", law, phi, GAIN_UNCERTAINTY, Z0[r])],
+    res = simulate(make_plant(MODEL[r], {"mass": 2.0}), [LoopSpec("cart", controller=law, disturbance=phi, gain=GAIN_UNCERTAINTY, z0=Z0[r])],
                    duration=6.0, period=0.005, physics_step=0.001)
     (info,) = res.info.loops
     assert info.true_phibar <= law.phibar and info.true_gamma_m >= law.gamma_m
@@ -131,7 +131,7 @@ def test_adaptive_law_stabilizes_the_cart_without_the_bounds_within_theorem_3(r,
     on the second half of the run."""
     eps = 1e-3
     law = AdaptiveLaw(HONG[r], kappa=1.0, delta=0.1, rate=2.0, eta=0.5, eps=eps)
-    res = simulate(make_plant(MODEL[r], {"mass": 2.0}), [LoopSpec("cart", law, phi, GAIN_UNCERTAINTY, Z0[r])],
+    res = simulate(make_plant(MODEL[r], {"mass": 2.0}), [LoopSpec("cart", controller=law, disturbance=phi, gain=GAIN_UNCERTAINTY, z0=Z0[r])],
                    duration=12.0, period=0.005, physics_step=0.001)
     (info,) = res.info.loops
     bounds = theorem3_bounds(certify(HONG[r]), info.true_phibar, info.true_gamma_m, law.kappa, law.delta,

@@ -40,18 +40,21 @@ class FailingLaw:
     """Wraps a law and raises `exc` at the `at`-th evaluation (to test the callback's error path)."""
 
     def __init__(self, law, at, exc):
-        self.law, self.hong, self.at, self.exc, self.calls = law, law.hong, at, exc, 0
+        self.law, self.at, self.exc, self.calls = law, at, exc, 0
 
-    def output(self, z, phi_hat):
+    def __getattr__(self, name):  # the rest of the law protocol: the wrapped law's
+        return getattr(self.law, name)
+
+    def evaluate(self, z, state):
         self.calls += 1
         if self.calls == self.at:
             raise self.exc
-        return self.law.output(z, phi_hat)
+        return self.law.evaluate(z, state)
 
 
 def _cart_loops(law=ROBUST2, **kw):
-    return [LoopSpec("cart", law, phi=Signal("sine", amplitude=0.4, freq=1.0),
-                     gamma=Signal("random", offset=1.0, amplitude=0.2, freq=3.0, seed=3), z0=(1.0, 0.0), **kw)]
+    return [LoopSpec("cart", controller=law, disturbance=Signal("sine", amplitude=0.4, freq=1.0),
+                     gain=Signal("random", offset=1.0, amplitude=0.2, freq=3.0, seed=3), z0=(1.0, 0.0), **kw)]
 
 
 def _previous_callback(m, d):
@@ -80,11 +83,11 @@ def test_a_run_hands_every_sample_to_the_sinks_and_returns_the_same_arrays():
 
 
 def test_same_inputs_give_bit_identical_samples():
-    a = simulate(make_plant("cart_integrating"), [LoopSpec("cart", ADAPTIVE3, phi=Signal("random", amplitude=0.5, seed=7),
-                                                           gamma=Signal("sine", offset=1.0, amplitude=0.3), z0=(1, 0, 0))],
+    a = simulate(make_plant("cart_integrating"), [LoopSpec("cart", controller=ADAPTIVE3, disturbance=Signal("random", amplitude=0.5, seed=7),
+                                                           gain=Signal("sine", offset=1.0, amplitude=0.3), z0=(1, 0, 0))],
                  duration=1.0, period=0.01, physics_step=0.001)
-    b = simulate(make_plant("cart_integrating"), [LoopSpec("cart", ADAPTIVE3, phi=Signal("random", amplitude=0.5, seed=7),
-                                                           gamma=Signal("sine", offset=1.0, amplitude=0.3), z0=(1, 0, 0))],
+    b = simulate(make_plant("cart_integrating"), [LoopSpec("cart", controller=ADAPTIVE3, disturbance=Signal("random", amplitude=0.5, seed=7),
+                                                           gain=Signal("sine", offset=1.0, amplitude=0.3), z0=(1, 0, 0))],
                  duration=1.0, period=0.01, physics_step=0.001)
     for f in LOOP_FIELDS:
         assert np.array_equal(a.loops["cart"][f], b.loops["cart"][f]), f
@@ -94,8 +97,8 @@ def test_same_inputs_give_bit_identical_samples():
 def test_save_continue_restore_continue_is_identical(integrator):
     """The state saved between samples holds everything (phi_hat in userdata, the r = 3 disturbance
     force in qfrc_applied): restoring it replays the continuation bit for bit."""
-    loops = [LoopSpec("cart", ADAPTIVE3, phi=Signal("random", amplitude=0.8, freq=4.0, seed=1),
-                      gamma=Signal("sine", offset=1.0, amplitude=0.3, freq=2.0), z0=(1.0, 0.5, 0.0))]
+    loops = [LoopSpec("cart", controller=ADAPTIVE3, disturbance=Signal("random", amplitude=0.8, freq=4.0, seed=1),
+                      gain=Signal("sine", offset=1.0, amplitude=0.3, freq=2.0), z0=(1.0, 0.5, 0.0))]
     sim = Simulation(make_plant("cart_integrating"), loops, period=0.01, physics_step=0.002, integrator=integrator)
     with sim.installed():
         sim.advance(150)
@@ -105,7 +108,7 @@ def test_save_continue_restore_continue_is_identical(integrator):
         second = sim.advance(100)
         # The state matters: restoring it with phi_hat zeroed gives a different continuation.
         sim.set_state(saved)
-        assert sim.data.userdata[0] > 0.0
+        assert sim.data.userdata.shape == (1,) and sim.data.userdata[0] > 0.0  # phi_hat: the one state
         sim.data.userdata[0] = 0.0
         third = sim.advance(100)
     for f in LOOP_FIELDS:
@@ -148,7 +151,7 @@ def test_ctrl_c_stops_the_run_as_interrupted_and_keeps_the_samples():
 def test_divergence_stops_the_run_with_a_clear_message_and_keeps_the_samples():
     """A negative actuator gain (the wrong sign) drives the cart away: stopped at |z| > limit."""
     sink = RecordingSink()
-    loops = [LoopSpec("cart", ROBUST2, gamma=Signal("constant", -1.0), z0=(1.0, 0.0))]
+    loops = [LoopSpec("cart", controller=ROBUST2, gain=Signal("constant", -1.0), z0=(1.0, 0.0))]
     res = simulate(make_plant("cart"), loops, duration=20.0, period=0.01, physics_step=0.001, sinks=[sink],
                    divergence_limit=50.0)
     assert res.status == DIVERGED and sink.closed[0] == DIVERGED
@@ -164,7 +167,7 @@ def test_period_must_be_a_multiple_of_the_physics_step_and_the_error_quotes_both
 
 
 @pytest.mark.parametrize("model, params, match", [
-    ("cartt", {}, "model: expected one of cart, cart_integrating"),
+    ("cartt", {}, "model: expected one of arm, cart, cart_integrating"),
     ("cart", {"mas": 1.0}, "params.mas: expected a parameter of model 'cart'"),
     ("cart", {"mass": -1.0}, "params.mass: expected a finite number > 0, got -1.0"),
     ("cart", {"sensor_refresh": False}, "params.sensor_refresh"),
@@ -177,10 +180,10 @@ def test_bad_plant_input_names_the_parameter(model, params, match):
 
 @pytest.mark.parametrize("loops, match", [
     ([], "loops: expected a LoopSpec for every loop of 'cart'"),
-    ([LoopSpec("arm", ROBUST2)], "loops.name: expected a loop of 'cart'"),
-    ([LoopSpec("cart", ADAPTIVE3)], "loops.cart.law: expected a law whose Hong controller has r = 2, got 3"),
-    ([LoopSpec("cart", ROBUST2, z0=(1.0,))], "loops.cart.z0: expected 2 finite numbers"),
-    ([LoopSpec("cart", ROBUST2, gamma=Signal("worst_case", 1.0, 0.1))], "loops.cart.gamma"),
+    ([LoopSpec("arm", controller=ROBUST2, z0=())], "loops.name: expected a loop of 'cart'"),
+    ([LoopSpec("cart", controller=ADAPTIVE3, z0=())], "loops.cart.controller: expected a law for chain length r = 2, got 3"),
+    ([LoopSpec("cart", controller=ROBUST2, z0=(1.0,))], "loops.cart.z0: expected 2 finite numbers"),
+    ([LoopSpec("cart", controller=ROBUST2, gain=Signal("worst_case", 1.0, 0.1), z0=(1.0, 0.0))], "loops.cart.gain"),
 ])
 def test_bad_loops_are_named(loops, match):
     with pytest.raises(ParameterError, match=match):
@@ -212,7 +215,7 @@ def test_a_mujoco_warning_stops_the_run_as_diverged(tmp_path, monkeypatch, nativ
     """A force so large that qacc exceeds MuJoCo's limit: MuJoCo warns (and resets the data); the
     run stops at the next sample with the warning named, keeping the samples before it."""
     monkeypatch.chdir(tmp_path)  # MuJoCo appends its warnings to ./MUJOCO_LOG.TXT
-    loops = [LoopSpec("cart", ROBUST2, phi=Signal("step", amplitude=1e12, t_step=0.05), z0=(1.0, 0.0))]
+    loops = [LoopSpec("cart", controller=ROBUST2, disturbance=Signal("step", amplitude=1e12, t_step=0.05), z0=(1.0, 0.0))]
     res = simulate(make_plant("cart"), loops, duration=1.0, period=0.01, physics_step=0.001, divergence_limit=1e300,
                    native=native)
     assert res.status == DIVERGED

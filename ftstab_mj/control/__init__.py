@@ -4,9 +4,11 @@ from ftstab_mj.control.certificate import Certificate, Theorem3Bounds, certify, 
 from ftstab_mj.control.hong import (
     HongController, HongOutput, gains_for_polynomial, is_hurwitz, nested_polynomial, sig,
 )
-from ftstab_mj.control.laws import AdaptiveLaw, LawOutput, NominalLaw, RobustLaw, advance_phi_hat
+from ftstab_mj.control.law import LAWS, Law, LawOutput, Param, law_class, register_law
+from ftstab_mj.control.laws import AdaptiveLaw, NominalLaw, RobustLaw, advance_phi_hat
 
 __all__ = [
-    "AdaptiveLaw", "Certificate", "HongController", "HongOutput", "LawOutput", "NominalLaw", "RobustLaw",
+    "LAWS", "AdaptiveLaw", "Certificate", "HongController", "HongOutput", "Law", "LawOutput", "NominalLaw", "Param",
+    "RobustLaw", "law_class", "register_law",
     "Theorem3Bounds", "advance_phi_hat", "certify", "gains_for_polynomial", "is_hurwitz", "nested_polynomial", "sig", "theorem3_bounds",
 ]

@@ -18,7 +18,7 @@ import sys
 
 import numpy as np
 
-from ftstab_mj.control.laws import AdaptiveLaw, LawOutput, NominalLaw, RobustLaw
+from ftstab_mj.control.law import LawOutput
 from ftstab_mj.errors import FtstabError, ParameterError
 
 RMAX = 8  # longest chain the kernel handles (FT_RMAX in kernel.c)
@@ -105,10 +105,11 @@ def use_native(native, law=None) -> bool:
 
 
 def _unsupported(law) -> str:
-    if type(law) not in (NominalLaw, RobustLaw, AdaptiveLaw):
+    # the class itself must declare its twin: a subclass overriding the maths is not the C code's
+    if type(law).__dict__.get("native_code") is None:
         return f"the C kernel does not know the law type {type(law).__name__}"
-    if law.hong.r > RMAX:
-        return f"the C kernel handles r <= {RMAX}, got r = {law.hong.r}"
+    if law.r > RMAX:
+        return f"the C kernel handles r <= {RMAX}, got r = {law.r}"
     return ""
 
 
@@ -122,11 +123,9 @@ def pack_law(law, substeps: int = RK4_SUBSTEPS) -> FtLaw:
     p.gains[: h.r] = h.gains
     p.beta[: h.r] = h.beta.tolist()
     p.expo[: h.r] = h.expo.tolist()
-    if isinstance(law, RobustLaw):
-        p.law, p.phibar, p.gamma_m = 1, law.phibar, law.gamma_m
-    elif isinstance(law, AdaptiveLaw):
-        p.law = 2
-        p.kappa, p.delta, p.rate, p.eta, p.eps = law.kappa, law.delta, law.rate, law.eta, law.eps
+    p.law = law.native_code
+    for name, value in law.param_values().items():  # the law's own parameters, by name (FtLaw fields)
+        setattr(p, name, value)
     return p
 
 

@@ -412,6 +412,7 @@ typedef struct {
     const int32_t *phi_state;    /* (n,) 1 when phi is state dependent (then given by state_phi[i]) */
     const ft_input *state_phi;   /* (n,) */
     const double *force_factor;  /* (n,) */
+    const int32_t *state_adr;    /* (n,) userdata index of loop i's law state (phi_hat), -1: no state */
     double period, h, divergence_limit;
     /* the batch (arrays (nsteps, n) unless said) */
     double t0;                   /* time of its first step */
@@ -466,7 +467,8 @@ static void run_sample(ft_run *R, const void *m, void *d, int64_t s) {
     ft_out o;
     for (int i = 0; i < n; i++) {
         const ft_law *L = &R->laws[i];
-        const double ph = R->userdata[i];
+        const int32_t adr = R->state_adr[i];
+        const double ph = adr >= 0 ? R->userdata[adr] : 0.0;
         const double *zi = z + i * FT_RMAX;
         law_eval(L, zi, ph, &o);
         if (R->phi_state[i]) { /* worst case: held over the period with this sample's dV1/dz_r */
@@ -489,7 +491,7 @@ static void run_sample(ft_run *R, const void *m, void *d, int64_t s) {
         for (int j = 0; j < L->r; j++) R->rec_z[at * L->r + j] = zi[j];
         R->rec[0][at] = o.u; R->rec[1][at] = o.u0; R->rec[2][at] = o.V1; R->rec[3][at] = o.dV1_dzr;
         R->rec[4][at] = o.phi_hat; R->rec[5][at] = o.gamma_hat; /* the law's phi_hat, as sim.py logs it */
-        R->userdata[i] = advance_phi(L, o.V1, ph, R->period);
+        if (adr >= 0) R->userdata[adr] = advance_phi(L, o.V1, ph, R->period);
     }
     R->rec_t[row] = t;
     for (int64_t k = s; k < s + N; k++)

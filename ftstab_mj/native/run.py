@@ -42,7 +42,7 @@ class FtRun(ctypes.Structure):
         ("sensordata", _p), ("qvel", _p), ("xpos", _p), ("xquat", _p), ("mj_forward_skip", _p), ("skip_stage", _i32),
         ("n", _i32), ("N", _i32), ("integrating", _i32), ("nbody", _i32),
         ("sensor_adr", _p), ("body_ids", _p), ("refs", _p), ("laws", _p), ("phi_damping", _p), ("phi_mass", _p),
-        ("phi_state", _p), ("state_phi", _p), ("force_factor", _p),
+        ("phi_state", _p), ("state_phi", _p), ("force_factor", _p), ("state_adr", _p),
         ("period", _d), ("h", _d), ("divergence_limit", _d),
         ("t0", _d), ("nsteps", _i64), ("t", _p), ("inj", _p), ("force", _p), ("ctrl_steps", _p), ("gain", _p),
         ("u_held", _p), ("rec_t", _p), ("rec_z", _p), ("rec", _p * 8), ("body_pos", _p), ("body_quat", _p),
@@ -109,20 +109,22 @@ def unsupported(plant, laws, loops, integrator: str) -> str:
     if plant.native_sensing(None) is None:
         return f"plant {plant.model_name!r} has no native sensor map"
     for L in loops:
-        if L.phi.state_dependent and L.phi.kind != "worst_case":
-            return f"the native callback does not know the state-dependent signal {L.phi.kind!r}"
+        if L.disturbance.state_dependent and L.disturbance.kind != "worst_case":
+            return f"the native callback does not know the state-dependent signal {L.disturbance.kind!r}"
     for law in laws:
         why = native._unsupported(law)
         if why:
             return why
+        if law.state_size > 1:
+            return f"the native callback keeps at most one state per law, {law.name!r} has {law.state_size}"
     return ""
 
 
 class NativeRun:
     """The native control callback of one Simulation (m, d), with its configuration kept alive."""
 
-    def __init__(self, m, d, plant, loops, laws, refs, force_factor, body_ids, period: float, physics_step: float,
-                 N: int, divergence_limit: float):
+    def __init__(self, m, d, plant, loops, laws, state_slices, refs, force_factor, body_ids, period: float,
+                 physics_step: float, N: int, divergence_limit: float):
         self.lib = _lib()
         adr, damping, mass = plant.native_sensing(m)
         n = len(laws)
@@ -133,10 +135,12 @@ class NativeRun:
             "laws": (FtLaw * n)(*(pack_law(law) for law in laws)),
             "phi_damping": np.ascontiguousarray(damping, dtype=float),
             "phi_mass": np.ascontiguousarray(mass, dtype=float),
-            "phi_state": np.array([L.phi.state_dependent for L in loops], dtype=np.int32),
-            "state_phi": (FtInput * n)(*(native.chain_input(L.phi, np.zeros((1, 1)))[0] if L.phi.state_dependent
-                                         else FtInput() for L in loops)),
+            "phi_state": np.array([L.disturbance.state_dependent for L in loops], dtype=np.int32),
+            "state_phi": (FtInput * n)(*(native.chain_input(L.disturbance, np.zeros((1, 1)))[0]
+                                         if L.disturbance.state_dependent else FtInput() for L in loops)),
             "force_factor": np.ascontiguousarray(force_factor, dtype=float),
+            # first userdata slot of each loop's law state, -1 for a law without state
+            "state_adr": np.array([sl.start if sl.stop > sl.start else -1 for sl in state_slices], dtype=np.int32),
             "u_held": np.zeros(n),
         }
         R = self.run = FtRun()

@@ -2,7 +2,9 @@
 
     plant = make_plant("cart", {"mass": 2.0})
 
-Models (files in models/):
+A plant is one module of this package (every module is imported) that subclasses base.Plant and
+calls ``register_plant(name, build, summary)``; ``ftstab list`` and the scenario's ``plant.model``
+then know it. Registered models (files in models/):
   "cart"              r = 2, one loop "cart"  (params: mass, friction, damping)
   "cart_integrating"  r = 3, one loop "cart"  (params: mass, friction, damping, sensor_refresh)
   "arm"               r = 2, loops "joint0", "joint1": two stacked hinge joints in a vertical plane
@@ -21,24 +23,24 @@ drives a plant (inputs, sensing, userdata) and each module for its physics and u
 
 from __future__ import annotations
 
-from ftstab_mj.errors import ParameterError
-from ftstab_mj.plants.arm import ArmPlant
-from ftstab_mj.plants.base import Plant
-from ftstab_mj.plants.cart import CartPlant
+import importlib
+import pkgutil
 
-MODELS = ("cart", "cart_integrating", "arm")
+from ftstab_mj.errors import ParameterError
+from ftstab_mj.plants.base import PLANTS, Plant, register_plant
+
+for _module in pkgutil.iter_modules(__path__):  # every plant module registers its models
+    importlib.import_module(f"{__name__}.{_module.name}")
+
+MODELS = tuple(PLANTS)  # the models registered by this package's modules
 
 
 def make_plant(model: str, params: dict | None = None) -> Plant:
-    """Build the plant ``model`` (one of MODELS) with ``params`` (defaults for missing keys)."""
+    """Build the registered plant ``model`` with ``params`` (defaults for missing keys)."""
     params = {} if params is None else params
-    if model == "cart":
-        return CartPlant(model, params, integrating=False)
-    if model == "cart_integrating":
-        return CartPlant(model, params, integrating=True)
-    if model == "arm":
-        return ArmPlant(model, params)
-    raise ParameterError("model", "one of " + ", ".join(MODELS), model)
+    if model not in PLANTS:
+        raise ParameterError("model", "one of " + ", ".join(PLANTS), model)
+    return PLANTS[model].build(model, params)
 
 
-__all__ = ["MODELS", "Plant", "make_plant"]
+__all__ = ["MODELS", "PLANTS", "Plant", "make_plant", "register_plant"]

@@ -45,7 +45,7 @@ import mujoco
 import numpy as np
 
 from ftstab_mj.errors import ParameterError
-from ftstab_mj.plants.base import Plant, check_keys, load_spec
+from ftstab_mj.plants.base import Plant, check_keys, load_spec, register_plant
 
 N_LINKS = 2
 DEFAULTS = {"link_lengths": [0.5, 0.4], "link_masses": [1.0, 0.5], "armature": [0.2, 0.1], "friction": 0.0, "damping": 0.0,
@@ -227,3 +227,8 @@ def _max_abs_quadratic(c: float, b: np.ndarray, A: np.ndarray, half_widths: np.n
                 continue
         best = max(best, abs(c + b @ x + x @ A @ x))
     return best
+
+
+register_plant("arm", ArmPlant, "r = 2, loops 'joint0', 'joint1': two stacked hinge joints in a vertical plane "
+               "(params: link_lengths, link_masses, armature, friction, damping; bounds' workspace: "
+               "q_min, q_max, qd_max, u_max, grid)")

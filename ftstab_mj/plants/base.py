@@ -12,13 +12,17 @@ Input mapping, per loop i, with the signals of its :class:`ftstab_mj.sim.LoopSpe
   how a gain on the actuator's input is modelled; for force actuators it is the same product.
 * injected disturbance: the generalized force ``qfrc_applied[i] = dist_scale[i] * phi(t)``
   (r = 2), or its rate ``d/dt qfrc_applied[i] = dist_scale[i] * phi(t)`` (r = 3, so the force has
-  a bounded derivative and phi is that derivative in chain units; NOTES.md section 7).
+  a bounded derivative and phi is that derivative in chain units).
 
 MuJoCo's ``userdata`` holds the controller state that must survive a save/restore of the
-simulation state (``mjSTATE_INTEGRATION`` includes it): see :data:`USERDATA_SLOTS`.
+simulation state (``mjSTATE_INTEGRATION`` includes it): the run loop asks :meth:`Plant.compile` for
+as many slots as its laws have state (ftstab_mj.sim).
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
 
 import mujoco
 import numpy as np
@@ -28,10 +32,6 @@ from ftstab_mj.errors import ParameterError
 from ftstab_mj.resources import data_dir
 
 MODELS_DIR = data_dir("models")
-
-# userdata layout (n = number of loops): phi_hat of each loop, the only controller state that
-# outlives a control period (everything else is recomputed at each sample).
-USERDATA_SLOTS = 1
 
 INTEGRATORS = {"euler": mujoco.mjtIntegrator.mjINT_EULER, "rk4": mujoco.mjtIntegrator.mjINT_RK4,
                "implicitfast": mujoco.mjtIntegrator.mjINT_IMPLICITFAST}
@@ -95,14 +95,15 @@ class Plant:
     def n(self) -> int:
         return len(self.loop_names)
 
-    def compile(self, physics_step: float, integrator: str = "euler"):
-        """(MjModel, MjData, MJCF text) for this physics step and integrator; the plant is unchanged."""
+    def compile(self, physics_step: float, integrator: str = "euler", nuserdata: int = 0):
+        """(MjModel, MjData, MJCF text) for this physics step and integrator, with ``nuserdata``
+        userdata slots (the controllers' state); the plant is unchanged."""
         if integrator not in INTEGRATORS:
             raise ParameterError("integrator", "one of " + ", ".join(INTEGRATORS), integrator)
         spec = self._spec.copy()
         spec.option.timestep = float(physics_step)
         spec.option.integrator = INTEGRATORS[integrator]
-        spec.nuserdata = USERDATA_SLOTS * self.n
+        spec.nuserdata = int(nuserdata)
         with control_callback(None):  # compiling runs a forward pass that would call it (callback.py)
             model = spec.compile()
             xml = spec.to_xml()
@@ -153,3 +154,25 @@ class Plant:
 def load_spec(filename: str) -> mujoco.MjSpec:
     """The MjSpec of models/<filename>."""
     return mujoco.MjSpec.from_file(str(MODELS_DIR / filename))
+
+
+# -- the plant registry ----------------------------------------------------------------------------
+@dataclass(frozen=True)
+class PlantEntry:
+    """A registered plant: ``build(name, params)`` returns the Plant; ``summary`` is one line for
+    ``ftstab list`` (chain length, loops, parameters)."""
+
+    name: str
+    build: Callable[[str, dict], Plant]
+    summary: str
+
+
+PLANTS: dict[str, PlantEntry] = {}
+
+
+def register_plant(name: str, build: Callable[[str, dict], Plant], summary: str) -> None:
+    """Make ``name`` a model of ``make_plant`` and of the scenario's ``plant.model`` (ftstab_mj.plants)."""
+    if name in PLANTS and PLANTS[name].build is not build:
+        raise TypeError(f"a plant named {name!r} is already registered")
+    PLANTS[name] = PlantEntry(name, build, summary)
+

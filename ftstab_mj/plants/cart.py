@@ -26,7 +26,7 @@ from __future__ import annotations
 import numpy as np
 
 from ftstab_mj.errors import ParameterError
-from ftstab_mj.plants.base import Plant, check_keys, load_spec, number
+from ftstab_mj.plants.base import Plant, check_keys, load_spec, number, register_plant
 
 PARAMS = ("mass", "friction", "damping", "sensor_refresh")
 
@@ -99,3 +99,10 @@ class CartPlant(Plant):
         if self.damping > 0.0:  # phi holds -b x'/m (r = 2; -b x''/m for r = 3): unbounded without a speed limit
             phibar = float("inf")
         return np.array([phibar]), np.array([glo]), np.array([ghi])
+
+
+register_plant("cart", lambda name, params: CartPlant(name, params, integrating=False),
+               "r = 2, one loop 'cart': a cart on a rail pushed by a force (params: mass, friction, damping)")
+register_plant("cart_integrating", lambda name, params: CartPlant(name, params, integrating=True),
+               "r = 3, one loop 'cart': the cart with an integrating actuator, force' = u "
+               "(params: mass, friction, damping, sensor_refresh)")

@@ -25,11 +25,11 @@ from dataclasses import MISSING, fields, is_dataclass, replace
 
 import numpy as np
 
-from ftstab_mj.control import HongController
+from ftstab_mj.control import law_class
 from ftstab_mj.disturbances import Signal
 from ftstab_mj.errors import ParameterError, ScenarioError
 from ftstab_mj.scenario.schema import (
-    COMPUTED, EXTERNAL_CHECKS, ROBUST_PARAMS, SIGNAL_DERIVED, ControllerSpec, LoopSpec, PlantSpec, Scenario,
+    COMPUTED, EXTERNAL_CHECKS, SIGNAL_DERIVED, ControllerSpec, LoopSpec, PlantSpec, Scenario,
     period_is_multiple,
 )
 from ftstab_mj.tomlfile import read_toml
@@ -213,14 +213,6 @@ def _check(sc: Scenario, rd: _Reader) -> Scenario:
         for i, zi in enumerate(lp.z0):  # MuJoCo silently resets a state beyond 1e10 to zero
             if abs(zi) > 1e9:
                 raise rd.error(f"{p}.z0[{i}]", "|z0| <= 1e9 (MuJoCo resets states beyond 1e10)", describe(zi))
-        if len(c.gains) != r:
-            raise rd.error(f"{p}.controller.gains", f"{r} gains l_1..l_r (r = {r} for model {sc.plant.model!r})",
-                           f"{len(c.gains)} gains")
-        try:
-            HongController(r, c.k, c.gains, form=c.form)
-        except ParameterError as exc:
-            name = exc.name.split(" ")[0]  # "gains[1] (l_2)" -> "gains[1]"
-            raise rd.error(f"{p}.controller.{name}", exc.allowed, describe(exc.given)) from None
         _check_law_params(c, f"{p}.controller", rd)
         lo = lp.gain.bounds()[0]
         if lo <= 0:
@@ -229,7 +221,14 @@ def _check(sc: Scenario, rd: _Reader) -> Scenario:
         seeds = {role: _derived_seed(sc.seed, lp.name, role) for role in _SIGNAL_ROLES}
         loops.append(replace(lp, disturbance=replace(lp.disturbance, seed=seeds["disturbance"]),
                              gain=replace(lp.gain, seed=seeds["gain"])))
-    return _computed_bounds(replace(sc, loops=tuple(loops)), plant, rd)
+    sc = _computed_bounds(replace(sc, loops=tuple(loops)), plant, rd)
+    for lp in sc.loops:  # the law's own validation (after "computed" is resolved), e.g. Hong's k and gains
+        try:
+            lp.controller.build(r)
+        except ParameterError as exc:
+            name = exc.name.split(" ")[0]  # "gains[1] (l_2)" -> "gains[1]"
+            raise rd.error(f"loops.{lp.name}.controller.{name}", exc.allowed, describe(exc.given)) from None
+    return sc
 
 
 def _check_plant(sc: Scenario, rd: _Reader):
@@ -250,8 +249,9 @@ def _check_plant(sc: Scenario, rd: _Reader):
 
 def _computed_bounds(sc: Scenario, plant, rd: _Reader) -> Scenario:
     """Replace robust bounds given as "computed" by the plant's bounds for the scenario's signals."""
-    wanted = [(i, name) for i, lp in enumerate(sc.loops) for name in ROBUST_PARAMS
-              if lp.controller.law == "robust" and getattr(lp.controller, name) == COMPUTED]
+    wanted = [(i, p.name, p.plant_bound) for i, lp in enumerate(sc.loops)
+              for p in law_class(lp.controller.law).all_params()
+              if p.plant_bound and getattr(lp.controller, p.name) == COMPUTED]
     if not wanted:
         return sc
     by_name = {lp.name: lp for lp in sc.loops}
@@ -261,12 +261,12 @@ def _computed_bounds(sc: Scenario, plant, rd: _Reader) -> Scenario:
     value = {(n, "phibar"): float(phibar[k]) for k, n in enumerate(plant.loop_names)}
     value.update({(n, "gamma_m"): float(gamma_m[k]) for k, n in enumerate(plant.loop_names)})
     loops = list(sc.loops)
-    for i, name in wanted:
-        if not math.isfinite(value[(loops[i].name, name)]):
+    for i, name, bound in wanted:
+        if not math.isfinite(value[(loops[i].name, bound)]):
             raise rd.error(f"loops.{loops[i].name}.controller.{name}",
                            "a number, since this plant's bound is infinite (damping adds -b x'/m to phi, "
                            "unbounded without a speed limit)", f'"{COMPUTED}" with damping = {plant.damping:g}')
-        loops[i] = replace(loops[i], controller=replace(loops[i].controller, **{name: value[(loops[i].name, name)]}))
+        loops[i] = replace(loops[i], controller=replace(loops[i].controller, **{name: value[(loops[i].name, bound)]}))
     return replace(sc, loops=tuple(loops))
 
 

@@ -11,19 +11,8 @@ import sys
 import time
 from dataclasses import dataclass
 
-from ftstab_mj.control import AdaptiveLaw, HongController, NominalLaw, RobustLaw
 from ftstab_mj.scenario.loader import scenario_from_dict, scenario_to_dict
-from ftstab_mj.scenario.schema import ControllerSpec, Scenario
-
-
-def build_law(c: ControllerSpec, r: int):
-    """The control law object of ftstab_mj.control for a controller spec and chain length r."""
-    hong = HongController(r, c.k, c.gains, form=c.form)
-    if c.law == "nominal":
-        return NominalLaw(hong)
-    if c.law == "robust":
-        return RobustLaw(hong, c.phibar, c.gamma_m)
-    return AdaptiveLaw(hong, c.kappa, c.delta, c.rate, c.eta, c.eps)
+from ftstab_mj.scenario.schema import Scenario
 
 
 @dataclass
@@ -43,18 +32,16 @@ def run_scenario(sc: Scenario, sinks=()) -> ScenarioRun:
     """
     from ftstab_mj.metrics import compute_metrics
     from ftstab_mj.plants import make_plant
-    from ftstab_mj.sim import LoopSpec, simulate
+    from ftstab_mj.sim import simulate
 
     plant = make_plant(sc.plant.model, sc.plant.params)
-    loops = [LoopSpec(name=lp.name, law=build_law(lp.controller, plant.r), phi=lp.disturbance, gamma=lp.gain,
-                      z0=lp.z0, ref=lp.ref) for lp in sc.loops]
     computed = {}
 
     def metrics(info, samples, status):  # computed once, for the sinks and for the caller
         computed["metrics"] = compute_metrics(info, samples, status)
         return computed["metrics"]
 
-    result = simulate(plant, loops, duration=sc.sim.duration, period=sc.sim.period,
+    result = simulate(plant, sc.loops, duration=sc.sim.duration, period=sc.sim.period,
                       physics_step=sc.sim.physics_step, integrator=sc.sim.integrator, sinks=tuple(sinks),
                       divergence_limit=sc.sim.divergence_limit, scenario_dict=scenario_to_dict(sc),
                       metric_settings=sc.metrics, metrics=metrics)

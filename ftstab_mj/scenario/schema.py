@@ -7,11 +7,11 @@ A scenario file (``scenarios/*.toml``) maps onto :class:`Scenario`::
     [sim]                              -> SimSpec
     [metrics]                          -> records.MetricSettings
     [loops.<name>]                     -> LoopSpec    (one per actuated joint of the plant)
-    [loops.<name>.controller]          -> ControllerSpec
+    [loops.<name>.controller]          -> ControllerSpec  (keys: the registered laws' parameters)
     [loops.<name>.disturbance]         -> disturbances.Signal (the injected disturbance)
     [loops.<name>.gain]                -> disturbances.Signal (the actuator gain factor)
 
-Chain units (NOTES.md section 7): for a loop of chain length r, z = (z_1, ..., z_r) are the
+Chain units: for a loop of chain length r, z = (z_1, ..., z_r) are the
 position error (m or rad) and its r - 1 derivatives; phi is in m/s^r (rad/s^r) and gamma in
 (m/s^r) per unit of control. The signals are in the plant's units (ftstab_mj.plants): for the cart
 they are phi and gamma in chain units; for the arm a torque (N m) and a dimensionless gain factor,
@@ -22,36 +22,18 @@ optional ``check`` (value -> None when fine, else a text saying what is allowed)
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import MISSING, dataclass, field, make_dataclass
 
+from ftstab_mj.control.law import (LAWS, Law, law_class, non_negative, on_register, one_of, open_unit_interval,
+                                   positive, scenario_params)
+from ftstab_mj.control.laws.paper import COMPUTED, bound
 from ftstab_mj.disturbances import Signal
 from ftstab_mj.records import MetricSettings
 
-LAWS = ("nominal", "robust", "adaptive")
 INTEGRATORS = ("euler", "implicitfast", "rk4")
-ROBUST_PARAMS = ("phibar", "gamma_m")
-ADAPTIVE_PARAMS = ("kappa", "delta", "rate", "eta", "eps")
 
 
 # -- field checks: value -> None if allowed, else the text of what is allowed --------------------
-def positive(v):
-    return None if v > 0 else "a number > 0"
-
-
-def non_negative(v):
-    return None if v >= 0 else "a number >= 0"
-
-
-def one_of(*allowed):
-    def check(v):
-        return None if v in allowed else "one of " + ", ".join(repr(a) for a in allowed)
-    return check
-
-
-def open_unit_interval(v):
-    return None if 0 < v < 1 else "a number in the open interval (0, 1)"
-
-
 def time_step(v):
     # 1e-7 s is 10 million steps per simulated second; below it a run is an error, not a study.
     return None if v >= 1e-7 else "a time step >= 1e-7 s"
@@ -75,18 +57,6 @@ def one_line(v):
     return None if v.strip() and "\n" not in v else "one non-empty line"
 
 
-COMPUTED = "computed"
-
-
-def bound(check):
-    """A robust bound: a number passing ``check``, or the word "computed"."""
-    def check_bound(v):
-        if isinstance(v, str):
-            return None if v == COMPUTED else f'a number or "{COMPUTED}"'
-        return check(v)
-    return check_bound
-
-
 def meta(doc, check=None):
     return {"doc": doc, "check": check}
 
@@ -96,7 +66,7 @@ def meta(doc, check=None):
 class PlantSpec:
     """The simulated plant: a model name and its physical parameters (units: see ftstab_mj.plants)."""
 
-    model: str = field(metadata=meta("the plant model name (see `ftstab_mj.plants.MODELS`)"))
+    model: str = field(metadata=meta("the plant model name (a registered plant: see `ftstab list`)"))
     # mass (kg), friction, damping, link sizes...: passed to make_plant, which validates them
     params: dict = field(default_factory=dict, metadata=meta("physical parameters of the model"))
 
@@ -114,52 +84,103 @@ class SimSpec:
         "the run stops as diverged when some |z_i| exceeds it (chain units)", state_limit))
 
 
-@dataclass(frozen=True)
-class ControllerSpec:
-    """One loop's control law (NOTES.md sections 2-6). Hong's part: form, k, gains; then the law's own.
+class _ControllerMethods:
+    """The methods of ControllerSpec (its fields come from the law registry: :func:`_controller_fields`)."""
 
-    robust needs phibar, gamma_m (the bounds it assumes, or "computed" to take the plant's bounds: the
-    loader replaces the word by the numbers); adaptive needs kappa, delta, rate, eta, eps;
-    nominal needs none. A parameter of another law is an error, not silently ignored.
-    """
-
-    law: str = field(metadata=meta("the control law", one_of(*LAWS)))
-    k: float = field(metadata=meta("homogeneity degree, -1/r < k <= 0 (full form)"))
-    gains: tuple[float, ...] = field(metadata=meta("Hong's gains l_1..l_r > 0 (Hurwitz nested polynomial)"))
-    form: str = field(default="full", metadata=meta("Hong's controller form", one_of("full", "simplified")))
-    # robust bounds: a number, or "computed": the plant's bound for this scenario's signals
-    # (Plant.true_bounds: the cart from the signal ranges, the arm from its model over its workspace)
-    phibar: float | str | None = field(default=None, metadata=meta(
-        "robust: assumed bound on |phi| (chain units, m/s^r or rad/s^2), or \"computed\"", bound(non_negative)))
-    gamma_m: float | str | None = field(default=None, metadata=meta(
-        "robust: assumed lower bound on gamma (chain units), or \"computed\"", bound(positive)))
-    kappa: float | None = field(default=None, metadata=meta("adaptive: gamma_hat = kappa + delta |u0|", positive))
-    delta: float | None = field(default=None, metadata=meta("adaptive: gamma_hat = kappa + delta |u0|", positive))
-    rate: float | None = field(default=None, metadata=meta(
-        "adaptive: growth rate of phi_hat (chain units per s; the paper's 'k')", positive))
-    eta: float | None = field(default=None, metadata=meta(
-        "adaptive: decay exponent of phi_hat", open_unit_interval))
-    eps: float | None = field(default=None, metadata=meta(
-        "adaptive: V1 level below which phi_hat decays", positive))
+    def __post_init__(self):
+        cls = LAWS.get(self.law)  # an unknown law is reported by the loader (the `law` field's check)
+        for p in cls.all_params() if cls else ():
+            if getattr(self, p.name) is None and not p.required:
+                object.__setattr__(self, p.name, p.default)
 
     def law_params(self) -> dict:
-        """The parameters of this law only: robust {phibar, gamma_m}, adaptive {kappa, ...}, nominal {}."""
-        names = {"robust": ROBUST_PARAMS, "adaptive": ADAPTIVE_PARAMS}.get(self.law, ())
-        return {n: getattr(self, n) for n in names}
+        """This law's parameters that other laws do not share as required keys (robust: {phibar,
+        gamma_m}; adaptive: {kappa, ...}; nominal: {}): the loader requires them and rejects the others'."""
+        flds = self.__dataclass_fields__
+        cls = law_class(self.law)
+        return {p.name: getattr(self, p.name) for p in cls.all_params() if flds[p.name].default is None}
+
+    def values(self) -> dict:
+        """{param: value} of every parameter of this law (defaults filled in)."""
+        return {p.name: getattr(self, p.name) for p in law_class(self.law).all_params()}
+
+    def build(self, r: int):
+        """The control law (a registered ftstab_mj.control.Law) for chain length r."""
+        return law_class(self.law).from_params(r, self.values())
+
+
+def _known_law(v):
+    return None if v in LAWS else "one of " + ", ".join(repr(a) for a in LAWS)
+
+
+def _controller_fields() -> list:
+    """ControllerSpec's fields: ``law``, then every registered law's parameters (law.py Param). A key
+    every law requires is required; one every law defaults the same way has that default; any other
+    defaults to None (the loader requires it for the laws that declare it: ``law_params``)."""
+    out = [("law", str, field(metadata=meta("the control law (see `ftstab list`)", _known_law)))]
+    for name, p in scenario_params().items():
+        decls = [next((q for q in cls.all_params() if q.name == name), None) for cls in LAWS.values()]
+        users = ", ".join(cls.name for cls in LAWS.values() if any(q.name == name for q in cls.all_params()))
+        doc = meta(f"{users}: {p.describe()}", p.check)
+        if all(q is not None and q.required for q in decls):
+            out.append((name, p.type, field(metadata=doc)))
+        elif all(q is not None and q.default == p.default for q in decls):
+            out.append((name, p.type, field(default=p.default, metadata=doc)))
+        else:
+            out.append((name, p.type | None, field(default=None, metadata=doc)))
+    # required fields first (dataclass order rule); among each kind, declaration order
+    return [f for f in out if f[2].default is MISSING] + [f for f in out if f[2].default is not MISSING]
+
+
+def _build_controller_spec():
+    cls = make_dataclass("ControllerSpec", _controller_fields(), bases=(_ControllerMethods,), frozen=True)
+    cls.__module__ = __name__
+    return cls
+
+
+ControllerSpec = _build_controller_spec()
+ControllerSpec.__doc__ = """One loop's control law: ``law`` (a registered law's name) and that law's parameters.
+
+Fields are generated from the law registry (ftstab_mj/control/law.py): a parameter of another law is
+an error, not silently ignored. Robust bounds may be the word "computed": the loader replaces it by
+the plant's bound for the scenario's signals."""
+
+
+def _refresh_controller_spec() -> None:
+    """A law registered after import: rebuild the fields in place, so every module holding
+    ControllerSpec (the loader) sees the new keys."""
+    fresh = _build_controller_spec()
+    for attr in ("__dataclass_fields__", "__annotations__", "__init__", "__repr__", "__eq__", "__hash__",
+                 "__match_args__", "__dataclass_params__"):
+        if attr in fresh.__dict__:
+            setattr(ControllerSpec, attr, fresh.__dict__[attr])
+
+
+on_register(_refresh_controller_spec)
 
 
 @dataclass(frozen=True)
 class LoopSpec:
-    """One control loop (one actuated joint): initial state, controller, phi(t), gamma(t)."""
+    """One control loop (one actuated joint): initial state, controller, phi(t), gamma(t).
+
+    The one loop description of the project: the scenario loader builds it from [loops.<name>]
+    (controller: a ControllerSpec) and ftstab_mj.sim runs it (controller: a ControllerSpec, built
+    for the plant's r, or a law object following ftstab_mj.control.Law).
+    """
 
     name: str = field(metadata=meta("loop name (the key of [loops.<name>]; the plant names its loops)"))
     z0: tuple[float, ...] = field(metadata=meta("initial state z_1..z_r (chain units: m or rad, then derivatives)"))
-    controller: ControllerSpec = field(metadata=meta("the control law"))
+    controller: ControllerSpec | Law = field(metadata=meta("the control law"))
     disturbance: Signal = field(default=Signal("constant", 0.0), metadata=meta(
         "injected disturbance (cart: phi in m/s^r; arm: torque in N m); default none"))
     gain: Signal = field(default=Signal("constant", 1.0), metadata=meta(
         "actuator gain factor (cart: gamma in chain units; arm: dimensionless); default 1"))
     ref: float = field(default=0.0, metadata=meta("set point of the joint position (m or rad): z_1 = q - ref"))
+
+    def law(self, r: int):
+        """The control law object of this loop for chain length r."""
+        c = self.controller
+        return c.build(r) if isinstance(c, ControllerSpec) else c
 
 
 @dataclass(frozen=True)

@@ -1,38 +1,74 @@
-"""The three control laws applied to the perturbed chain z_r' = phi + gamma u (NOTES.md sections 4, 6).
+"""The paper's three laws on the perturbed chain z_r' = phi + gamma u (Harmouche, Laghrouche, Chitour).
 
-Every law maps a state z (..., r) and its adaptive state phi_hat (...) to a :class:`LawOutput`.
-All three share one structure, u = gamma_hat * u0 + phi_hat * sign(u0):
+Registered as "nominal", "robust" and "adaptive" (protocol: ftstab_mj/control/law.py). Each is built
+on Hong's homogeneous controller (k, gains, form: :class:`HongController`), which gives u0, the
+Lyapunov function V1 and dV1/dz_r. All three share one structure, u = gamma_hat * u0 + phi_hat * sign(u0):
 
 * nominal (Hong alone):     gamma_hat = 1,              phi_hat = 0
 * robust (Theorem 2):       gamma_hat = 1 / gamma_m,    phi_hat = phibar / gamma_m   (constants)
 * adaptive (Theorem 3):     gamma_hat = kappa + delta |u0|,  phi_hat is a state with
   phi_hat' = rate nu_eps(V1) - (1 - nu_eps(V1)) sig(phi_hat, eta)
 
-so the logged gamma_hat / phi_hat mean the same thing for every law. A law never integrates its
-own state: :meth:`state_derivative` returns phi_hat', and :func:`advance_phi_hat` (or the plant)
-integrates it over a control period with V1 held, keeping phi_hat >= 0.
+so the logged gamma_hat / phi_hat mean the same thing for every law. Only the adaptive law has a
+state (phi_hat, state_size 1); :meth:`AdaptiveLaw.phi_hat_rate` is phi_hat' and
+:func:`advance_phi_hat` integrates it over a control period with V1 held, keeping phi_hat >= 0.
+``output(z, phi_hat)`` is the maths API with a scalar phi_hat (...) (the ideal chain and the C twin
+use it); ``evaluate(z, state)`` is the protocol's, with state (..., state_size).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import NamedTuple
 
 import numpy as np
 
 from ftstab_mj.control.hong import HongController
+from ftstab_mj.control.law import (Law, LawOutput, Param, non_negative, one_of, open_unit_interval, positive,
+                                   register_law)
 from ftstab_mj.errors import ParameterError
 
+COMPUTED = "computed"  # a robust bound given as this word is the plant's bound (scenario loader)
 
-class LawOutput(NamedTuple):
-    """One evaluation of a law; every field has the batch shape (...)."""
 
-    u: np.ndarray  # control applied to the plant, chain units
-    u0: np.ndarray  # Hong's nominal control
-    V1: np.ndarray
-    dV1_dzr: np.ndarray
-    gamma_hat: np.ndarray
-    phi_hat: np.ndarray
+def bound(check):
+    """A robust bound: a number passing ``check``, or the word "computed"."""
+    def check_bound(v):
+        if isinstance(v, str):
+            return None if v == COMPUTED else f'a number or "{COMPUTED}"'
+        return check(v)
+    return check_bound
+
+
+# Hong's controller, the base of the three laws (LoopInfo.hong).
+HONG_PARAMS = (
+    Param("k", float, "homogeneity degree, -1/r < k <= 0 (full form)"),
+    Param("gains", tuple[float, ...], "Hong's gains l_1..l_r > 0 (Hurwitz nested polynomial)"),
+    Param("form", str, "Hong's controller form", check=one_of("full", "simplified"), default="full"),
+)
+
+
+class _HongLaw(Law):
+    """A law built on Hong's controller: r, V1 and dV1/dz_r come from ``self.hong``."""
+
+    base_params = HONG_PARAMS
+    lyapunov = True
+    hong: HongController
+
+    @property
+    def r(self) -> int:
+        return self.hong.r
+
+    @classmethod
+    def from_params(cls, r, values):
+        hong = HongController(r, values["k"], values["gains"], form=values["form"])
+        return cls(hong, **{p.name: values[p.name] for p in cls.params})
+
+    def base_info(self) -> dict:
+        h = self.hong
+        return {"r": h.r, "k": h.k, "gains": list(h.gains), "form": h.form}
+
+    def evaluate(self, z, state) -> LawOutput:
+        return self.output(z)
 
 
 def _positive(name, value, allow_zero=False):
@@ -43,30 +79,39 @@ def _positive(name, value, allow_zero=False):
     return float(value)
 
 
+@register_law
 @dataclass(frozen=True)
-class NominalLaw:
+class NominalLaw(_HongLaw):
     """u = u0: Hong's controller alone, for the unperturbed chain."""
 
+    name = "nominal"
+    summary = "Hong's homogeneous controller alone, u = u0 (the paper, Theorem 1)"
+    native_code = 0
     hong: HongController
-    adaptive = False
 
     def output(self, z, phi_hat=0.0) -> LawOutput:
         u0, V1, dV = self.hong.evaluate(z)
         one = np.ones_like(u0)
         return LawOutput(u0, u0, V1, dV, one, 0.0 * one)
 
-    def state_derivative(self, V1, phi_hat):
-        return np.zeros(np.broadcast(V1, phi_hat).shape)
 
-
+@register_law
 @dataclass(frozen=True)
-class RobustLaw:
+class RobustLaw(_HongLaw):
     """Theorem 2: u = (u0 + phibar sign(u0)) / gamma_m, for known bounds |phi| <= phibar, gamma >= gamma_m."""
 
+    name = "robust"
+    summary = "Hong's controller with known bounds, u = (u0 + phibar sign(u0)) / gamma_m (Theorem 2)"
+    params = (
+        Param("phibar", float | str, 'assumed bound on |phi|, or "computed"', "chain units, m/s^r or rad/s^2",
+              bound(non_negative), plant_bound="phibar"),
+        Param("gamma_m", float | str, 'assumed lower bound on gamma, or "computed"', "chain units",
+              bound(positive), plant_bound="gamma_m"),
+    )
+    native_code = 1
     hong: HongController
     phibar: float
     gamma_m: float
-    adaptive = False
 
     def __post_init__(self):
         object.__setattr__(self, "phibar", _positive("phibar", self.phibar, allow_zero=True))
@@ -78,25 +123,32 @@ class RobustLaw:
         p_hat = np.full_like(u0, self.phibar / self.gamma_m)
         return LawOutput(g_hat * u0 + p_hat * np.sign(u0), u0, V1, dV, g_hat, p_hat)
 
-    def state_derivative(self, V1, phi_hat):
-        return np.zeros(np.broadcast(V1, phi_hat).shape)
 
-
+@register_law
 @dataclass(frozen=True)
-class AdaptiveLaw:
+class AdaptiveLaw(_HongLaw):
     """Theorem 3: u = gamma_hat u0 + phi_hat sign(u0), with bounds unknown to the controller.
 
     kappa, delta > 0 (gamma_hat = kappa + delta |u0|); rate > 0 (the paper's adaptation rate 'k');
-    eta in (0, 1); eps > 0 (the V1 level below which phi_hat decays).
+    eta in (0, 1); eps > 0 (the V1 level below which phi_hat decays). State: (phi_hat,).
     """
 
+    name = "adaptive"
+    summary = "Hong's controller with adapted gains, u = (kappa + delta |u0|) u0 + phi_hat sign(u0) (Theorem 3)"
+    params = (
+        Param("kappa", float, "gamma_hat = kappa + delta |u0|", check=positive),
+        Param("delta", float, "gamma_hat = kappa + delta |u0|", check=positive),
+        Param("rate", float, "growth rate of phi_hat (the paper's 'k')", "chain units per s", positive),
+        Param("eta", float, "decay exponent of phi_hat", check=open_unit_interval),
+        Param("eps", float, "V1 level below which phi_hat decays", check=positive),
+    )
+    native_code = 2
     hong: HongController
     kappa: float
     delta: float
     rate: float
     eta: float
     eps: float
-    adaptive = True
 
     def __post_init__(self):
         for name in ("kappa", "delta", "rate", "eps"):
@@ -117,10 +169,24 @@ class AdaptiveLaw:
         x = (np.abs(V1) - 0.75 * self.eps) / (0.25 * self.eps)
         return 0.5 + 0.5 * x / np.maximum(1.0, np.abs(x))
 
-    def state_derivative(self, V1, phi_hat):
+    def phi_hat_rate(self, V1, phi_hat):
         """phi_hat' = rate nu - (1 - nu) sig(phi_hat, eta), shape of the broadcast of V1 and phi_hat."""
         nu = self.nu(V1)
         return self.rate * nu - (1.0 - nu) * np.sign(phi_hat) * np.abs(phi_hat) ** self.eta
+
+    # -- the protocol: state (..., 1) = phi_hat ---------------------------------------------------
+    @property
+    def state_size(self) -> int:
+        return 1
+
+    def evaluate(self, z, state) -> LawOutput:
+        return self.output(z, state[..., 0])
+
+    def state_derivative(self, z, state, out):
+        return self.phi_hat_rate(out.V1, state[..., 0])[..., None]
+
+    def advance(self, z, state, out, h):
+        return advance_phi_hat(self, out.V1, state[..., 0], h)[..., None]
 
 
 def advance_phi_hat(law, V1, phi_hat, h, substeps: int = 8):
@@ -132,7 +198,7 @@ def advance_phi_hat(law, V1, phi_hat, h, substeps: int = 8):
     (0 < nu < 1) a > 0 keeps phi >= 0 and phi relaxes monotonically towards (a/b)^(1/eta); there
     RK4 with ``substeps`` sub-steps is used, clipped at 0 as a guard.
     """
-    if not getattr(law, "adaptive", False):
+    if not isinstance(law, AdaptiveLaw):
         return np.asarray(phi_hat, dtype=float) + 0.0
     V1, phi = np.broadcast_arrays(np.asarray(V1, dtype=float), np.maximum(np.asarray(phi_hat, dtype=float), 0.0))
     nu = law.nu(V1)

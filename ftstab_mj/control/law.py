@@ -1,0 +1,195 @@
+"""The control-law protocol and the law registry: one class per law, found by its scenario name.
+
+A law is a :class:`Law` subclass registered with :func:`register_law`. Everything else (the
+scenario schema's ``[loops.<name>.controller]`` keys, ``ftstab list``, RunInfo/LoopInfo
+``law_params``, the run loop, the logs) reads it from the registry. To add a law:
+
+1. write a module ``ftstab_mj/control/laws/<name>.py`` (every module of that package is imported);
+2. in it, subclass :class:`Law`: ``name``, ``summary``, ``params`` (:class:`Param`), ``lyapunov``;
+3. implement ``from_params(r, values)``, ``evaluate(z, state)`` and, if it has a state,
+   ``state_size``, ``initial_state`` and ``state_derivative`` (``advance`` if Euler is not exact);
+4. decorate it with ``@register_law``; give it a ``native_code`` only when kernel.c has its twin.
+
+The protocol (shapes: z (..., r) chain state, state (..., m) with m = ``law.state_size``):
+
+* ``evaluate(z, state) -> LawOutput``: the control u and the logged quantities. V1 and dV1_dzr are a
+  Lyapunov function of the closed loop and its derivative in z_r (used by the worst-case
+  disturbance and the metrics) when ``lyapunov`` is True, NaN otherwise; u0 is the nominal part of u
+  (NaN when the law has none); gamma_hat and phi_hat are the gain and disturbance estimates the law
+  uses in u = gamma_hat u0 + phi_hat sign(u0) (NaN when u is not of that form).
+* ``state_derivative(z, state, out)``: the law's own state equation x' = f(z, x) (continuous time).
+* ``advance(z, state, out, h)``: the state one control period h later with z held over the period
+  (zero-order hold, what a sampled controller does). Default: x + h f, exact when f does not depend
+  on x; a law whose f does (the adaptive phi_hat) integrates it itself.
+* The run loop keeps the state in MuJoCo's userdata (``state_size`` slots per loop), so a saved
+  simulation state (mjSTATE_INTEGRATION) holds it and save/restore is exact.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Callable, ClassVar, NamedTuple
+
+import numpy as np
+
+from ftstab_mj.errors import ParameterError
+
+REQUIRED = object()  # Param.default of a parameter the scenario must give
+
+
+class LawOutput(NamedTuple):
+    """One evaluation of a law; every field has the batch shape (...). Units: chain units."""
+
+    u: np.ndarray  # control applied to the plant
+    u0: np.ndarray  # nominal part of u (Hong's u0), NaN if none
+    V1: np.ndarray  # Lyapunov function, NaN if the law has none
+    dV1_dzr: np.ndarray  # dV1/dz_r, NaN if no Lyapunov function
+    gamma_hat: np.ndarray  # gain estimate in u = gamma_hat u0 + phi_hat sign(u0), NaN if not of that form
+    phi_hat: np.ndarray  # disturbance estimate in the same form, NaN if not of that form
+
+
+@dataclass(frozen=True)
+class Param:
+    """One scenario parameter of a law (a key of ``[loops.<name>.controller]``).
+
+    type: the TOML value's Python type (float, str, tuple[float, ...], float | str);
+    doc: what it is; units: its units ("" if dimensionless); check: value -> None when allowed,
+    else the text of what is allowed (the loader quotes it); default: REQUIRED or a value;
+    plant_bound: "phibar" or "gamma_m" when the word "computed" stands for the plant's bound.
+    Two laws may share a parameter only with the same declaration (one key, one meaning).
+    """
+
+    name: str
+    type: Any
+    doc: str
+    units: str = ""
+    check: Callable[[Any], str | None] | None = None
+    default: Any = REQUIRED
+    plant_bound: str | None = None
+
+    @property
+    def required(self) -> bool:
+        return self.default is REQUIRED
+
+    def describe(self) -> str:
+        """"doc (units)", as the schema and ``ftstab list`` show it."""
+        return f"{self.doc} ({self.units})" if self.units else self.doc
+
+
+class Law:
+    """Base of the registered laws: class attributes say what the law is, methods what it does."""
+
+    name: ClassVar[str] = ""  # the scenario's `law` value
+    summary: ClassVar[str] = ""  # one line for `ftstab list`, with the source (paper, section)
+    base_params: ClassVar[tuple[Param, ...]] = ()  # of the controller it is built on (LoopInfo.hong)
+    params: ClassVar[tuple[Param, ...]] = ()  # its own (LoopInfo.law_params)
+    lyapunov: ClassVar[bool] = False  # V1, dV1_dzr are a Lyapunov function and its gradient
+    native_code: ClassVar[int | None] = None  # the law's number in kernel.c (None: no native twin)
+
+    r: int  # chain length the law controls
+
+    @classmethod
+    def all_params(cls) -> tuple[Param, ...]:
+        return cls.base_params + cls.params
+
+    @classmethod
+    def from_params(cls, r: int, values: dict) -> "Law":
+        """The law for chain length r from {param name: value} (every declared param, defaults filled).
+        Raises ParameterError naming the parameter."""
+        raise NotImplementedError
+
+    @property
+    def state_size(self) -> int:
+        return 0
+
+    def initial_state(self) -> np.ndarray:
+        """The state at t = 0, shape (state_size,)."""
+        return np.zeros(self.state_size)
+
+    def evaluate(self, z, state) -> LawOutput:
+        raise NotImplementedError
+
+    def state_derivative(self, z, state, out: LawOutput) -> np.ndarray:
+        return np.zeros(np.shape(state))
+
+    def advance(self, z, state, out: LawOutput, h: float) -> np.ndarray:
+        return np.asarray(state, dtype=float) + h * self.state_derivative(z, state, out)
+
+    def base_info(self) -> dict:
+        """Parameters of the underlying controller (LoopInfo.hong), {} when the law has none."""
+        return {}
+
+    def param_values(self) -> dict:
+        """The law's own parameter values (LoopInfo.law_params)."""
+        return {p.name: getattr(self, p.name) for p in self.params}
+
+
+# -- the registry ----------------------------------------------------------------------------------
+LAWS: dict[str, type[Law]] = {}
+_listeners: list[Callable[[], None]] = []
+
+
+def register_law(cls: type[Law]) -> type[Law]:
+    """Class decorator: add ``cls`` to the registry under ``cls.name`` (schema and `ftstab list` follow)."""
+    if not (isinstance(cls.name, str) and cls.name.isidentifier()):
+        raise TypeError(f"law class {cls.__name__} needs a name that is an identifier, got {cls.name!r}")
+    if cls.name in LAWS and LAWS[cls.name] is not cls:
+        raise TypeError(f"a law named {cls.name!r} is already registered ({LAWS[cls.name].__name__})")
+    known = scenario_params()
+    for p in cls.all_params():
+        if p.name == "law":
+            raise TypeError(f"law {cls.name!r}: 'law' names the law, it cannot be a parameter")
+        if p.name in known and known[p.name] != p:
+            raise TypeError(f"law {cls.name!r}: parameter {p.name!r} is declared differently by another law "
+                            "(share the same Param or choose another name)")
+    LAWS[cls.name] = cls
+    for listener in _listeners:
+        listener()
+    return cls
+
+
+def unregister_law(name: str) -> None:
+    """Remove a registered law (a test's toy law: global state put back); listeners are told."""
+    del LAWS[name]
+    for listener in _listeners:
+        listener()
+
+
+def on_register(listener: Callable[[], None]) -> None:
+    """Call ``listener()`` after every registration (the scenario schema rebuilds its ControllerSpec)."""
+    _listeners.append(listener)
+
+
+def law_class(name: str) -> type[Law]:
+    try:
+        return LAWS[name]
+    except KeyError:
+        raise ParameterError("law", "one of " + ", ".join(LAWS), name) from None
+
+
+def scenario_params() -> dict[str, Param]:
+    """Every registered law's parameters, first declaration order: the controller table's keys."""
+    out: dict[str, Param] = {}
+    for cls in LAWS.values():
+        for p in cls.all_params():
+            out.setdefault(p.name, p)
+    return out
+
+
+# -- checks shared by law declarations -------------------------------------------------------------
+def positive(v):
+    return None if v > 0 else "a number > 0"
+
+
+def non_negative(v):
+    return None if v >= 0 else "a number >= 0"
+
+
+def open_unit_interval(v):
+    return None if 0 < v < 1 else "a number in the open interval (0, 1)"
+
+
+def one_of(*allowed):
+    def check(v):
+        return None if v in allowed else "one of " + ", ".join(repr(a) for a in allowed)
+    return check
