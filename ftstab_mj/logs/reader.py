@@ -1,10 +1,27 @@
-"""Reading an MCAP run log back into arrays (replay, check, verify), tolerating truncation.
+"""Reading an MCAP run log back into arrays (replay, check, verify, report): checked, bounded, tolerant of truncation.
 
-The file is read sequentially, record by record. A run killed mid-way (SIGKILL, power loss)
-leaves no summary and usually a partial last record: everything up to the last complete
-chunk is kept (the sink ends a chunk at every flush), and :attr:`LogData.warning` says how much
-was recovered. A file that does not start with the MCAP magic, or that lacks the /run_info
-written at the start of every ftstab log, raises :class:`~ftstab_mj.errors.LogError`.
+A log is input like any other, possibly from elsewhere, so the file is parsed here record by record
+(the MCAP layout: magic, records of opcode + u64 length, footer, magic) with every declared length
+checked against the bytes that exist before anything is read or allocated, and every chunk
+decompressed to at most its declared size (itself bounded: :data:`MAX_CHUNK_BYTES`, and
+:data:`MAX_EXPANSION` times the file's size in all).
+
+Three outcomes:
+
+- **complete**: the file ends with its footer; the CRC-32s the writer stored are checked: each
+  chunk's data, the data section (DataEnd) and the summary (Footer), and the message counts of the
+  summary's statistics against what was read. A failed chunk CRC (or any broken structure) is
+  **damage**: :class:`DamagedLog`, one line naming the chunk or byte offset and how many samples
+  before it are intact; no sample after the damage is returned. A data-section CRC that fails while
+  every chunk's own CRC holds and every message is accounted for means the flip lies outside the
+  samples (an index, the metadata): the samples are returned with :attr:`LogData.warning` saying so.
+- **truncated** (a run killed mid-way: no footer, the last record cut): everything up to the last
+  complete chunk is kept (the sink ends a chunk at every flush) and the warning says how much.
+- not a log: :class:`~ftstab_mj.errors.LogError`.
+
+Both encodings of ``/loop/<name>`` are read: protobuf ``ftstab.LoopSample`` (logs/encoding.py, the
+current one) and JSON (logs written by ftstab_mj 0.1); ``/tf`` as protobuf or JSON likewise.
+Chunks written without a CRC (0.1) cannot be checked: :attr:`LogData.crc_checked` says so.
 """
 
 from __future__ import annotations
@@ -12,7 +29,7 @@ from __future__ import annotations
 import json
 import struct
 import zlib
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -20,17 +37,35 @@ from ftstab_mj.errors import LogError
 from ftstab_mj.records import LOOP_FIELDS, RunInfo
 
 MCAP_MAGIC = b"\x89MCAP0\r\n"
+MAX_CHUNK_BYTES = 1 << 28  # 256 MiB uncompressed per chunk (the sink writes one chunk per batch, ~1 MB)
+MAX_EXPANSION = 64  # all chunks together decompress to at most this times the file size (+ 64 MiB)
+MAX_LOOPS = 64
+MAX_BODIES = 10_000
+
+_OP = {0x01: "header", 0x02: "footer", 0x03: "schema", 0x04: "channel", 0x05: "message", 0x06: "chunk",
+       0x07: "message index", 0x08: "chunk index", 0x09: "attachment", 0x0A: "attachment index",
+       0x0B: "statistics", 0x0C: "metadata", 0x0D: "metadata index", 0x0E: "summary offset", 0x0F: "data end"}
+_DATA_SECTION = {0x01, 0x06, 0x07, 0x0C, 0x0F}  # what an ftstab log holds outside its summary
+_SUMMARY = {0x03, 0x04, 0x08, 0x0A, 0x0B, 0x0D, 0x0E, 0x02}
+_IN_CHUNK = {0x03, 0x04, 0x05}
+
+
+class DamagedLog(LogError):
+    """A log whose bytes were altered (a failed CRC, a broken record): where, and what is intact before it."""
 
 
 @dataclass
 class LogData:
     """A run as read from its log.
 
-    loops: {loop name: {field: array}} (z (n, r), others (n,)), non-finite values as NaN;
+    loops: {loop name: {field: array}} (z (n, r), others (n,); every field the log holds, at least
+    records.LOOP_FIELDS), non-finite values as NaN;
     pose_t (m,), pose_pos (m, nbody, 3), pose_quat (m, nbody, 4) (w, x, y, z): the body poses
     of /tf, at their own (display) rate; recorded: the /metrics message ({"status", "message",
     "metrics"}) or None when the run did not finish; complete: the file ends with its footer;
-    bytes_read / bytes_total: how much of the file was usable.
+    bytes_read / bytes_total: how much of the file was usable; encoding: "protobuf" | "json" (the
+    loop channels); crc_checked: every chunk carried a CRC and it held; notes: other findings
+    (e.g. damage outside the samples), each one line.
     """
 
     path: str
@@ -44,6 +79,9 @@ class LogData:
     complete: bool = True
     bytes_read: int = 0
     bytes_total: int = 0
+    encoding: str = "protobuf"
+    crc_checked: bool = True
+    notes: tuple = ()
 
     @property
     def n_samples(self) -> int:
@@ -51,9 +89,9 @@ class LogData:
 
     @property
     def warning(self) -> str | None:
-        """One line saying how much of a truncated log was recovered (None for a complete log)."""
+        """One line saying what is wrong with a log that could still be read (None for an intact log)."""
         if self.complete:
-            return None
+            return " ".join(self.notes) or None
         t_last = max((float(a["t"][-1]) for a in self.loops.values() if len(a["t"])), default=None)
         upto = f"up to t = {t_last:.6g} s" if t_last is not None else "no sample"
         return (f"{self.path}: truncated log (the run did not finish writing it): recovered {self.n_samples} "
@@ -61,107 +99,409 @@ class LogData:
                 "(the last complete chunk); later samples are lost")
 
 
-def _records(path: str, f):
-    """Yield (record, end offset) of every complete top-level record; stops at the first damage.
+class _Damage(Exception):
+    """Internal: where (byte offset) and what is broken."""
 
-    Returns (via StopIteration.value) True when the footer was reached.
-    """
-    from mcap.exceptions import McapError
-    from mcap.records import Footer
-    from mcap.stream_reader import StreamReader
+    def __init__(self, offset: int, what: str, cut: bool = False):
+        self.offset, self.what, self.cut = offset, what, cut  # cut: a top-level record runs past the file's end
 
-    reader = StreamReader(f, emit_chunks=True)
+
+def _u(fmt: str, buf, pos: int, end: int, what: str):
+    size = struct.calcsize(fmt)
+    if pos + size > end:
+        raise _Damage(pos, f"{what} runs past the end of its record")
+    return struct.unpack_from(fmt, buf, pos), pos + size
+
+
+def _string(buf, pos: int, end: int, what: str) -> tuple[str, int]:
+    (n,), pos = _u("<I", buf, pos, end, what)
+    if pos + n > end:
+        raise _Damage(pos, f"{what} declares {n} bytes, more than its record holds")
     try:
-        for rec in reader.records:
-            yield rec, f.tell()
-            if isinstance(rec, Footer):
-                return True
-    except (McapError, struct.error, EOFError, ValueError, MemoryError, zlib.error):
-        return False
-    return False
+        return bytes(buf[pos:pos + n]).decode("utf-8"), pos + n
+    except UnicodeDecodeError:
+        raise _Damage(pos, f"{what} is not UTF-8") from None
 
 
-def _rows(datas: list[bytes]) -> list[dict]:
+def _bytes(buf, pos: int, end: int, what: str, prefix: str = "<I") -> tuple[bytes, int]:
+    (n,), pos = _u(prefix, buf, pos, end, what)
+    if pos + n > end:
+        raise _Damage(pos, f"{what} declares {n} bytes, more than its record holds")
+    return bytes(buf[pos:pos + n]), pos + n
+
+
+def _records(buf, pos: int, end: int, where: str):
+    """Yield (opcode, body start, body end, record start) of the records in buf[pos:end]; every
+    declared length is checked against ``end`` first. A record past ``end`` raises _Damage with
+    cut = top (a truncation when it happens at the top level of a file that never got its footer)."""
+    top = where == "in the file"
+    while pos < end:
+        if pos + 9 > end:
+            raise _Damage(pos, f"a record header {where} is cut short", cut=top)
+        op, length = struct.unpack_from("<BQ", buf, pos)
+        if length > end - pos - 9:
+            raise _Damage(pos, f"the {_OP.get(op, f'0x{op:02x}')} record {where} declares {length} bytes, "
+                               f"past the end ({end - pos - 9} left)", cut=top)
+        yield op, pos + 9, pos + 9 + length, pos
+        pos += 9 + length
+
+
+class _Parser:
+    """Collects schemas, channels, messages and metadata while walking the file."""
+
+    def __init__(self, buf, path: str):
+        self.buf, self.path, self.total = buf, path, len(buf)
+        self.schemas: dict[int, tuple] = {}  # id -> (name, encoding, data)
+        self.channels: dict[int, tuple] = {}  # id -> (topic, schema id, message encoding)
+        self.messages: dict[int, list] = {}  # channel id -> [(sequence, log time, data)]
+        self.versions: dict = {}
+        self.chunks = 0
+        self.crc_checked = True
+        self.expanded = 0
+        self.good = 0  # end offset of the last complete, intact record
+        self.complete = False
+        self.data_end = None  # (record start, stored data-section CRC)
+        self.stats = None  # (message count, chunk count, {channel: count}) from the summary
+        self.footer = None  # (summary start, summary CRC, footer record start)
+
+    # -- inside a chunk ---------------------------------------------------------------------------
+    def _inner(self, buf, pos, end, chunk: int):
+        staged = ([], [], [])
+        for op, b0, b1, _ in _records(buf, pos, end, f"inside chunk {chunk}"):
+            if op not in _IN_CHUNK:
+                raise _Damage(b0, f"chunk {chunk} holds a {_OP.get(op, f'0x{op:02x}')} record")
+            if op == 0x03:
+                (sid,), p = _u("<H", buf, b0, b1, "schema id")
+                name, p = _string(buf, p, b1, "schema name")
+                enc, p = _string(buf, p, b1, "schema encoding")
+                data, p = _bytes(buf, p, b1, "schema data")
+                staged[0].append((sid, (name, enc, data)))
+            elif op == 0x04:
+                (cid, sid), p = _u("<HH", buf, b0, b1, "channel ids")
+                topic, p = _string(buf, p, b1, "channel topic")
+                enc, p = _string(buf, p, b1, "message encoding")
+                staged[1].append((cid, (topic, sid, enc)))
+            else:
+                (cid, seq, t_log, _t_pub), p = _u("<HIQQ", buf, b0, b1, "message header")
+                staged[2].append((cid, (seq, t_log, bytes(buf[p:b1]))))
+        return staged
+
+    def _chunk(self, b0: int, b1: int):
+        buf, k = self.buf, self.chunks + 1  # chunks are counted from 1 in messages
+        (_t0, _t1, size, crc), p = _u("<QQQI", buf, b0, b1, f"chunk {k} header")
+        comp, p = _string(buf, p, b1, f"chunk {k} compression")
+        (n,), p = _u("<Q", buf, p, b1, f"chunk {k} records length")
+        if n != b1 - p:
+            raise _Damage(p, f"chunk {k} declares {n} bytes of records, its record holds {b1 - p}")
+        if comp not in ("", "zstd", "lz4"):
+            raise _Damage(b0, f"chunk {k} declares an unknown compression {comp[:20]!r}")
+        if size > MAX_CHUNK_BYTES or self.expanded + size > MAX_EXPANSION * self.total + (64 << 20):
+            raise _Damage(b0, f"chunk {k} declares {size} uncompressed bytes, beyond what a log of "
+                              f"{self.total} bytes can hold")
+        data = bytes(buf[p:b1])
+        try:
+            if comp == "zstd":
+                import zstandard
+
+                raw = zstandard.ZstdDecompressor().decompress(data, max_output_size=size)
+            elif comp == "lz4":
+                import lz4.frame
+
+                raw = lz4.frame.LZ4FrameDecompressor().decompress(data, max_length=size)
+            else:
+                raw = data
+        except Exception:
+            raise _Damage(b0, f"chunk {k} does not decompress ({comp})") from None
+        if len(raw) != size:
+            raise _Damage(b0, f"chunk {k} decompresses to {len(raw)} bytes, it declares {size}")
+        if crc == 0:
+            self.crc_checked = False  # written without a CRC (ftstab_mj 0.1): nothing to check
+        elif zlib.crc32(raw) != crc:
+            raise _Damage(b0, f"chunk {k} fails its CRC check")
+        self.expanded += size
+        return self._inner(raw, 0, len(raw), k)
+
+    def _commit(self, staged):
+        schemas, channels, messages = staged
+        self.schemas.update(schemas)
+        self.channels.update(channels)
+        for cid, m in messages:
+            self.messages.setdefault(cid, []).append(m)
+
+    # -- the file ---------------------------------------------------------------------------------
+    def walk(self):
+        """Walk every record. Raises _Damage at the first broken one; a cut at the end of a file
+        that never got its footer is a truncation (stops quietly, complete False)."""
+        buf, total = self.buf, self.total
+        ended = buf[-len(MCAP_MAGIC):] == MCAP_MAGIC and total >= 2 * len(MCAP_MAGIC)
+        in_summary = False
+        try:
+            for op, b0, b1, start in _records(buf, len(MCAP_MAGIC), total, "in the file"):
+                allowed = _SUMMARY if in_summary else _DATA_SECTION
+                if op not in allowed:
+                    raise _Damage(start, f"unexpected {_OP.get(op, f'0x{op:02x}')} record "
+                                         f"{'in the summary' if in_summary else 'in the data section'}")
+                if op == 0x06:
+                    self._commit(self._chunk(b0, b1))
+                    self.chunks += 1
+                elif op == 0x0C:
+                    name, p = _string(buf, b0, b1, "metadata name")
+                    (n,), p = _u("<I", buf, p, b1, "metadata map length")
+                    q, entries = p, {}
+                    while q < p + n:
+                        key, q = _string(buf, q, b1, "metadata key")
+                        value, q = _string(buf, q, b1, "metadata value")
+                        entries[key] = value
+                    if name == "versions":
+                        self.versions = entries
+                elif op == 0x0F:
+                    (crc,), _ = _u("<I", buf, b0, b1, "data end")
+                    self.data_end = (start, crc)
+                    in_summary = True
+                elif op == 0x0B:
+                    (count, _s, _c, _a, _m, chunks, _t0, _t1), p = _u("<QHIIIIQQ", buf, b0, b1, "statistics")
+                    (n,), p = _u("<I", buf, p, b1, "statistics channel counts")
+                    if n != b1 - p or n % 10:
+                        raise _Damage(p, "the statistics' channel counts do not fill their record")
+                    per = {cid: c for cid, c in struct.iter_unpack("<HQ", bytes(buf[p:b1]))}
+                    self.stats = (count, chunks, per)
+                elif op == 0x02:
+                    (s_start, _off, s_crc), _ = _u("<QQI", buf, b0, b1, "footer")
+                    self.footer = (s_start, s_crc, start)
+                    self.complete = True
+                    self.good = total
+                    return
+                if not in_summary:
+                    self.good = b1
+        except _Damage as d:
+            if d.cut and not ended:  # a run killed mid-way: keep what was flushed
+                return
+            raise
+
+    def check_integrity(self) -> list[str]:
+        """For a complete file: the stored CRCs and counts. Raises _Damage when samples may be
+        affected; returns notes for damage outside them."""
+        notes = []
+        summary_ok = False
+        if self.footer is not None:
+            s_start, s_crc, f_start = self.footer
+            if s_crc and 0 < s_start <= f_start:
+                got = zlib.crc32(bytes(self.buf[f_start:f_start + 9 + 16]), zlib.crc32(bytes(self.buf[s_start:f_start])))
+                summary_ok = got == s_crc
+                if not summary_ok:
+                    notes.append(f"{self.path}: the summary fails its CRC check (not used).")
+        if summary_ok and self.stats is not None:
+            count, chunks, per = self.stats
+            have = {cid: len(m) for cid, m in self.messages.items()}
+            if chunks != self.chunks or count != sum(have.values()) or any(
+                    per.get(cid, 0) != n for cid, n in have.items()):
+                raise _Damage(0, f"the summary counts {chunks} chunks and {count} messages, the file holds "
+                                 f"{self.chunks} chunks and {sum(have.values())} messages (a record was skipped)")
+        if self.data_end is not None and self.data_end[1]:
+            start, crc = self.data_end
+            if zlib.crc32(bytes(self.buf[:start])) != crc:
+                if not (self.crc_checked and summary_ok):
+                    raise _Damage(0, "the data section fails its CRC check")
+                notes.append(f"{self.path}: the data section fails its CRC check outside the chunks (an index or "
+                             "the metadata was altered); every chunk's own CRC holds, so the samples are intact.")
+        return notes
+
+
+def _rows(datas: list[bytes], what: str) -> list:
     """Decode many JSON messages at once (one json.loads over a JSON array of them)."""
-    return json.loads(b"[" + b",".join(datas) + b"]") if datas else []
+    try:
+        return json.loads(b"[" + b",".join(datas) + b"]") if datas else []
+    except (ValueError, RecursionError):
+        raise LogError(f"{what}: expected JSON messages, found bytes that do not parse") from None
 
 
-def _loop_arrays(rows: list[dict], r: int) -> dict:
-    out = {f: np.array([row[f] for row in rows], dtype=float) for f in LOOP_FIELDS if f != "z"}
-    out["z"] = np.array([row["z"] for row in rows], dtype=float).reshape(len(rows), r)
+def _json_loop(rows: list, r: int, what: str) -> dict:
+    try:
+        out = {f: np.array([row[f] for row in rows], dtype=float) for f in LOOP_FIELDS if f != "z"}
+        out["z"] = np.array([row["z"] for row in rows], dtype=float).reshape(len(rows), r)
+    except (KeyError, TypeError, ValueError):
+        raise LogError(f"{what}: expected JSON samples with the fields {', '.join(LOOP_FIELDS)}") from None
+    return out
+
+
+def _protobuf_loop(schema: tuple, datas: list[bytes], r: int, what: str) -> dict:
+    from ftstab_mj.logs.encoding import decode_each, layout_from_schema
+
+    name, encoding, data = schema
+    if encoding != "protobuf":
+        raise LogError(f"{what}: expected a protobuf schema, found {encoding!r}")
+    try:
+        layout, cls = layout_from_schema(data, what, datas[0] if datas else None)
+        out = layout.decode(b"".join(datas), len(datas))
+        if out is None:
+            out = decode_each(layout, cls, datas, what)
+    except ValueError as exc:
+        raise LogError(str(exc)) from None
+    except Exception:  # a message the protobuf runtime refuses
+        raise LogError(f"{what}: the messages do not decode as {name}") from None
+    if datas:
+        missing = [f for f in LOOP_FIELDS if f not in out]
+        if missing or out["z"].ndim != 2 or out["z"].shape[1] != r:
+            raise LogError(f"{what}: expected the fields {', '.join(LOOP_FIELDS)} with z of {r} values, found "
+                           f"{', '.join(out) or 'none'}")
+    else:
+        out = {f: np.empty((0, r)) if f == "z" else np.empty(0) for f in LOOP_FIELDS}
     return out
 
 
 def read_log(path) -> LogData:
-    """Read an ftstab MCAP log (complete or truncated). Raises LogError when it is not one."""
-    from mcap.records import Channel, Chunk, Message, Metadata
-    from mcap.stream_reader import breakup_chunk
-
+    """Read an ftstab MCAP log (complete or truncated). Raises LogError when it is not one and
+    DamagedLog when its bytes were altered."""
     path = str(path)
     try:
-        f = open(path, "rb")
+        with open(path, "rb") as f:
+            buf = f.read()
     except OSError as exc:
         raise LogError(f"{path}: cannot read the log ({exc.strerror})") from None
-    with f:
-        head = f.read(len(MCAP_MAGIC))
-        if head != MCAP_MAGIC:
-            raise LogError(f"{path}: not an MCAP log (expected a file starting with the MCAP magic bytes, "
-                           f"found {head[:8]!r})")
-        f.seek(0, 2)
-        total = f.tell()
-        f.seek(0)
-        channels: dict[int, str] = {}
-        by_topic: dict[str, list[bytes]] = {}
-        versions: dict = {}
-        good = 0
-        gen = _records(path, f)
-        complete = False
-        while True:
-            try:
-                rec, end = next(gen)
-            except StopIteration as stop:
-                complete = bool(stop.value)
-                break
-            inner = [rec]
-            if isinstance(rec, Chunk):
-                try:
-                    inner = breakup_chunk(rec, validate_crc=True)
-                except Exception:  # a damaged chunk (CRC, compression): stop at the last good one
-                    break
-            for r in inner:
-                if isinstance(r, Channel):
-                    channels[r.id] = r.topic
-                elif isinstance(r, Message):
-                    by_topic.setdefault(channels.get(r.channel_id, "?"), []).append(r.data)
-                elif isinstance(r, Metadata) and r.name == "versions":
-                    versions = dict(r.metadata)
-            good = end
+    if buf[:len(MCAP_MAGIC)] != MCAP_MAGIC:
+        raise LogError(f"{path}: not an MCAP log (expected a file starting with the MCAP magic bytes, "
+                       f"found {buf[:8]!r})")
+    p = _Parser(memoryview(buf), path)
+    notes = []
+    try:
+        p.walk()
+        if p.complete:
+            notes = p.check_integrity()
+    except _Damage as d:
+        raise DamagedLog(_damage_line(path, p, d)) from None
+    by_topic = {}
+    for cid, msgs in p.messages.items():
+        topic = p.channels.get(cid, ("?", 0, ""))[0]
+        by_topic[topic] = (cid, msgs)
+    for topic, (cid, msgs) in by_topic.items():
+        if [m[0] for m in msgs] != list(range(len(msgs))):
+            raise DamagedLog(f"{path}: damaged log: {topic} messages are missing or out of order "
+                             "(their sequence numbers have gaps)")
     if "/run_info" not in by_topic:
         raise LogError(f"{path}: not an ftstab run log (expected a /run_info message at its start, "
                        f"found topics {sorted(by_topic) or 'none'})")
-    scenario = _rows(by_topic.get("/scenario", []))
-    run = _rows(by_topic["/run_info"])[0]
-    info = RunInfo.from_dict({"scenario": scenario[0] if scenario else {}, **run})
-    loops = {lp.name: _loop_arrays(_rows(by_topic.get(f"/loop/{lp.name}", [])), lp.r) for lp in info.loops}
-    pose_t, pos, quat = _poses(_rows(by_topic.get("/tf", [])), info.body_names)
-    metrics = _rows(by_topic.get("/metrics", []))
+
+    def datas(topic):
+        return [m[2] for m in by_topic[topic][1]] if topic in by_topic else []
+
+    scenario = _rows(datas("/scenario"), f"{path} /scenario")
+    run = _rows(datas("/run_info"), f"{path} /run_info")[0]
+    info = _run_info(path, scenario[0] if scenario else {}, run)
+    if info.model_xml is not None:  # never compiled unless it is safe to (logs/scene.py)
+        from ftstab_mj.logs.scene import check_untrusted_model
+
+        try:
+            check_untrusted_model(info.model_xml, f"{path} /run_info model_xml")
+        except LogError as exc:
+            notes.append(f"{exc}: the 3D model is left out.")
+            info = replace(info, model_xml=None)
+    loops = {}
+    encoding = "protobuf"
+    for lp in info.loops:
+        topic = f"/loop/{lp.name}"
+        what = f"{path} {topic}"
+        if topic in by_topic:
+            cid = by_topic[topic][0]
+            _, sid, enc = p.channels[cid]
+            if enc == "json":
+                encoding = "json"
+                loops[lp.name] = _json_loop(_rows(datas(topic), what), lp.r, what)
+            elif sid in p.schemas:
+                loops[lp.name] = _protobuf_loop(p.schemas[sid], datas(topic), lp.r, what)
+            else:
+                raise LogError(f"{what}: expected a schema for the channel, found none")
+        else:
+            loops[lp.name] = {f: np.empty((0, lp.r)) if f == "z" else np.empty(0) for f in LOOP_FIELDS}
+    tf_enc = p.channels[by_topic["/tf"][0]][2] if "/tf" in by_topic else "protobuf"
+    pose_t, pos, quat = _poses(datas("/tf"), tf_enc, info.body_names, f"{path} /tf")
+    metrics = _rows(datas("/metrics"), f"{path} /metrics")
+    recorded = metrics[-1] if metrics else None
+    if recorded is not None and not (isinstance(recorded, dict) and isinstance(recorded.get("status"), str)):
+        raise LogError(f"{path} /metrics: expected an object with a status, found {str(recorded)[:60]!r}")
     return LogData(path=path, info=info, loops=loops, pose_t=pose_t, pose_pos=pos, pose_quat=quat,
-                   recorded=metrics[-1] if metrics else None, versions=versions,
-                   complete=complete, bytes_read=good if not complete else total, bytes_total=total)
+                   recorded=recorded, versions=p.versions, complete=p.complete,
+                   bytes_read=p.total if p.complete else p.good, bytes_total=p.total, encoding=encoding,
+                   crc_checked=p.crc_checked, notes=tuple(notes))
 
 
-def _poses(rows: list[dict], body_names) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _damage_line(path: str, p: _Parser, d: _Damage) -> str:
+    """One line: where the damage is and how much before it is intact."""
+    counts = []
+    for cid, msgs in p.messages.items():
+        topic = p.channels.get(cid, ("?",))[0]
+        if topic.startswith("/loop/") and msgs:
+            counts.append(f"{len(msgs)} samples of {topic} (up to t = {msgs[-1][1] * 1e-9:.6g} s)")
+    before = "; ".join(counts) or "no sample"
+    return (f"{path}: damaged log: {d.what} (byte {d.offset}); intact before it: {before}; nothing after it is "
+            "used")
+
+
+def _run_info(path: str, scenario, run) -> RunInfo:
+    """RunInfo from a log's /run_info, with its sizes bounded (a log may come from anywhere)."""
+    what = f"{path} /run_info"
+    if not isinstance(run, dict) or not isinstance(scenario, dict):
+        raise LogError(f"{what}: expected JSON objects, found {type(run).__name__}")
+    loops, bodies = run.get("loops"), run.get("body_names", ())
+    if not isinstance(loops, list) or not 1 <= len(loops) <= MAX_LOOPS:
+        raise LogError(f"{what}: loops: expected a list of 1 to {MAX_LOOPS} loops, found {str(loops)[:60]}")
+    if not isinstance(bodies, list | tuple) or len(bodies) > MAX_BODIES or not all(isinstance(b, str) for b in bodies):
+        raise LogError(f"{what}: body_names: expected at most {MAX_BODIES} names")
+    for lp in loops:
+        r = lp.get("r") if isinstance(lp, dict) else None
+        if isinstance(r, bool) or not isinstance(r, int) or not 1 <= r <= 64:
+            raise LogError(f"{what}: loops.r: expected an integer from 1 to 64, found {str(r)[:40]}")
+    try:
+        info = RunInfo.from_dict({"scenario": scenario, **run})
+    except Exception:
+        raise LogError(f"{what}: expected the fields of RunInfo (loops, period, physics_step, ...), found "
+                       f"keys {sorted(run)[:12]}") from None
+    if not (np.isfinite(info.period) and info.period > 0):
+        raise LogError(f"{what}: period: expected a finite number > 0, found {info.period!r}")
+    if not isinstance(info.model_xml, str | None):
+        raise LogError(f"{what}: model_xml: expected a string or null")
+    return info
+
+
+def _poses(datas: list[bytes], encoding: str, body_names, what: str):
+    """(t (m,), pos (m, nbody, 3), quat (m, nbody, 4) (w, x, y, z)) of the /tf messages."""
     nb = len(body_names)
     index = {b: i for i, b in enumerate(body_names)}
-    t = np.empty(len(rows))
-    pos = np.zeros((len(rows), nb, 3))
-    quat = np.zeros((len(rows), nb, 4))
-    for k, row in enumerate(rows):
-        for tf in row["transforms"]:
-            i = index[tf["child_frame_id"]]
-            s = tf["timestamp"]
-            t[k] = s["sec"] + s["nsec"] * 1e-9
-            p, q = tf["translation"], tf["rotation"]
-            pos[k, i] = (p["x"], p["y"], p["z"])
-            quat[k, i] = (q["w"], q["x"], q["y"], q["z"])
+    t = np.empty(len(datas))
+    pos = np.zeros((len(datas), nb, 3))
+    quat = np.zeros((len(datas), nb, 4))
+    if not datas:
+        return t, pos, quat
+    try:
+        if encoding == "json":
+            for k, row in enumerate(_rows(datas, what)):
+                for tf in row["transforms"]:
+                    i = index[tf["child_frame_id"]]
+                    s, p, q = tf["timestamp"], tf["translation"], tf["rotation"]
+                    t[k] = s["sec"] + s["nsec"] * 1e-9
+                    pos[k, i] = (p["x"], p["y"], p["z"])
+                    quat[k, i] = (q["w"], q["x"], q["y"], q["z"])
+        else:
+            cls = _frame_transforms_class()
+            for k, data in enumerate(datas):
+                for tf in cls.FromString(data).transforms:
+                    i = index[tf.child_frame_id]
+                    p, q = tf.translation, tf.rotation
+                    t[k] = tf.timestamp.seconds + tf.timestamp.nanos * 1e-9
+                    pos[k, i] = (p.x, p.y, p.z)
+                    quat[k, i] = (q.w, q.x, q.y, q.z)
+    except LogError:
+        raise
+    except Exception:
+        raise LogError(f"{what}: expected foxglove.FrameTransforms of the logged bodies") from None
     return t, pos, quat
+
+
+def _frame_transforms_class():
+    """The protobuf class of the official foxglove.FrameTransforms (from foxglove-sdk's schema, not the log's)."""
+    from foxglove.messages import FrameTransforms
+    from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
+
+    pool = descriptor_pool.DescriptorPool()
+    for f in descriptor_pb2.FileDescriptorSet.FromString(FrameTransforms.get_schema().data).file:
+        pool.Add(f)
+    return message_factory.GetMessageClass(pool.FindMessageTypeByName("foxglove.FrameTransforms"))

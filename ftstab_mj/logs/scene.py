@@ -11,6 +11,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
+# A model read from a log is untrusted: compiling it must neither read local files nor allocate
+# what its numbers declare. These elements name files or generate/allocate in bulk; a log's model
+# holding one is not compiled (its 3D is left out). Attributes ending in these name files or folders.
+UNTRUSTED_ELEMENTS = frozenset({"include", "mesh", "hfield", "texture", "skin", "flex", "flexcomp", "composite",
+                                "replicate", "plugin", "extension", "model", "attach", "instance", "frame"})
+FILE_ATTRIBUTES = ("file", "dir", "fileright", "fileleft", "fileup", "filedown", "filefront", "fileback")
+MAX_ELEMENTS = 10_000  # elements in a log's model (ours have tens)
+MAX_MODEL_CHARS = 1 << 20
+
 # MuJoCo geom types drawn (others, e.g. meshes and height fields, are left out of the viewers).
 DRAWN = ("plane", "sphere", "capsule", "ellipsoid", "cylinder", "box")
 PLANE_HALF_SIZE = 5.0  # m, half extent drawn for an infinite MuJoCo plane (size 0)
@@ -33,6 +42,36 @@ class Shape:
     pos: tuple
     quat: tuple
     rgba: tuple
+
+
+def check_untrusted_model(model_xml: str, what: str) -> None:
+    """Refuse (LogError, one line) an MJCF from a log that would make MuJoCo read a local file
+    (include, mesh/texture/hfield/skin files, asset folders) or allocate in bulk (replicate,
+    composite, flex, textures, height fields, plugins), or that is larger than our models can be.
+    Parsed with the standard library's expat (entity expansion is bounded there), never compiled."""
+    import xml.etree.ElementTree as ET
+
+    from ftstab_mj.errors import LogError
+
+    if len(model_xml) > MAX_MODEL_CHARS:
+        raise LogError(f"{what}: expected a model of at most {MAX_MODEL_CHARS} characters, found {len(model_xml)}")
+    if "<!DOCTYPE" in model_xml.upper() or "<!ENTITY" in model_xml.upper():
+        raise LogError(f"{what}: expected an MJCF model without a DOCTYPE or entities, found one")
+    try:
+        root = ET.fromstring(model_xml)
+    except ET.ParseError as exc:
+        raise LogError(f"{what}: expected an MJCF model, found XML that does not parse ({exc})") from None
+    for n, el in enumerate(root.iter()):
+        if n >= MAX_ELEMENTS:
+            raise LogError(f"{what}: expected at most {MAX_ELEMENTS} elements in the model, found more")
+        tag = el.tag.lower() if isinstance(el.tag, str) else ""
+        if tag in UNTRUSTED_ELEMENTS:
+            raise LogError(f"{what}: the model holds a <{tag}> element; a model from a log is not compiled when it "
+                           "could read local files or allocate in bulk")
+        for attr, value in el.attrib.items():
+            if attr.lower().endswith(FILE_ATTRIBUTES):
+                raise LogError(f"{what}: the model names a file or folder (<{tag} {attr}={value[:60]!r}>); "
+                               "a model from a log never makes replay read local files")
 
 
 def model_shapes(model_xml: str, body_names) -> list[Shape]:

@@ -45,8 +45,15 @@ def verify_log(log) -> Verification:
     """Re-run ``log.info.scenario`` (no sinks) and compare it with ``log`` (a reader.LogData)."""
     from ftstab_mj.scenario.run import run_scenario_dict
 
+    from ftstab_mj.plants import MODELS
+
     if not log.info.scenario:
         raise LogError(f"{log.path}: no scenario recorded in /scenario, nothing to re-run")
+    plant = log.info.scenario.get("plant")
+    model = plant.get("model") if isinstance(plant, dict) else None
+    if model not in MODELS:  # a log is untrusted: re-running it must not read a local file it names
+        raise LogError(f"{log.path}: /scenario plant.model: --verify re-runs the shipped plants only "
+                       f"({', '.join(MODELS)}), found {str(model)[:80]!r}; re-run that scenario with ftstab run")
     finished = log.complete and log.recorded is not None and log.recorded["status"] in (COMPLETED, DIVERGED)
     scenario = copy.deepcopy(log.info.scenario)
     if not finished and log.n_samples and isinstance(scenario.get("sim"), dict):
