@@ -116,6 +116,10 @@ def run_sweep(name: str, rows: list[Row], task, out_dir, identity: dict, *, engi
     finally:
         results.close()  # stops the engine (pool, cluster) even when interrupted
         journal.close()
+    if outcome.interrupted:
+        # the journal is the record: a Ctrl-C between journaling a row and noting it in `done`
+        # must not leave a table that lacks a journaled row (the resume would skip it)
+        done = read_journal(journal_path)
     write_table(list(done.values()), table_path)
     outcome.done = len(done)
     outcome.failed = sum(1 for row in done.values() if row["status"] != COMPLETED)
