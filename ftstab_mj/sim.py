@@ -233,6 +233,7 @@ class Simulation:
         if self._native is None:
             self._step_batch(n_samples, warn0)
         else:  # the same work, in C, inside one mj_step(nstep) call
+            self._native.clear_rows()  # before the try: the finally below must never see the last batch's count
             try:
                 self._native.run_batch(m, d, self._t, self._inj, self._gain, self._force, self._ctrl, self._rec_t,
                                        self._rec_z, [self._rec_scalars[f] for f in _SCALARS], self._pos, self._quat)
@@ -282,17 +283,20 @@ class Simulation:
         return ", ".join(f"{k.name} x{w.number}" for k, w in zip(_DIVERGENCE_WARNINGS, self._warnings) if w.number)
 
     def _start_batch(self, n_samples: int) -> None:
+        # No row recorded yet, set before the new (uninitialised) arrays exist, and _rec last: a
+        # Ctrl-C anywhere in here leaves take_batch either the old state taken (None) or 0 rows.
+        self._rec = None
+        self._row = -1
         n_body, n_loops = len(self._body_ids), len(self.loops)
         # One array per field for all loops (the native callback writes them); each loop's record
         # is a view of its row.
         self._rec_t = np.empty(n_samples)
         self._rec_z = np.empty((n_loops, n_samples, self.plant.r))
         self._rec_scalars = {f: np.empty((n_loops, n_samples)) for f in _SCALARS}
-        self._rec = [{"t": self._rec_t, "z": self._rec_z[i], **{f: a[i] for f, a in self._rec_scalars.items()}}
-                     for i in range(n_loops)]
         self._pos = np.empty((n_samples, n_body, 3))
         self._quat = np.empty((n_samples, n_body, 4))
-        self._row = -1
+        self._rec = [{"t": self._rec_t, "z": self._rec_z[i], **{f: a[i] for f, a in self._rec_scalars.items()}}
+                     for i in range(n_loops)]
 
     def take_batch(self) -> SampleBatch:
         """The samples recorded since the batch started (all of them after a normal advance, the

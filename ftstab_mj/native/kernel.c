@@ -15,9 +15,6 @@
 #define FT_THREADS 1
 #include <pthread.h>
 #endif
-#if defined(_MSC_VER)
-#include <windows.h> /* InterlockedCompareExchangePointer */
-#endif
 
 #define FT_RMAX 8
 #define FT_MAXLOOPS 8 /* loops of one native run */
@@ -510,25 +507,19 @@ static void run_sample(ft_run *R, const void *m, void *d, int64_t s) {
     R->row = row;
 }
 
-/* The run whose batch is stepping (MuJoCo's slot is global too). Set and cleared with atomic
- * compare-and-swap: ctypes releases the GIL, so two threads may call ft_run_activate at once, and
- * the second must be refused, never handed the first one's batch. */
-static ft_run *ft_active = NULL;
+/* The run whose batch is stepping, one per thread: MuJoCo calls the control callback in the
+ * thread that called mj_step, so with a thread-local active run a batch is only ever served by the
+ * run of the thread that steps it (two threads stepping native batches at once cannot take each
+ * other's: the Python side refuses a second run's callback anyway, callback.py). */
 #if defined(_MSC_VER)
-#define FT_CAS(expected, desired) \
-    (InterlockedCompareExchangePointer((PVOID volatile *)&ft_active, (desired), (expected)) == (expected))
-#define FT_ACTIVE() ((ft_run *)InterlockedCompareExchangePointer((PVOID volatile *)&ft_active, NULL, NULL))
+static __declspec(thread) ft_run *ft_active = NULL;
 #else
-static int ft_cas(ft_run *expected, ft_run *desired) {
-    return __atomic_compare_exchange_n(&ft_active, &expected, desired, 0, __ATOMIC_SEQ_CST, __ATOMIC_SEQ_CST);
-}
-#define FT_CAS(expected, desired) ft_cas((expected), (desired))
-#define FT_ACTIVE() __atomic_load_n(&ft_active, __ATOMIC_ACQUIRE)
+static _Thread_local ft_run *ft_active = NULL;
 #endif
 
 /* The callback installed with mujoco.set_mjcb_control (signature mjfGeneric). */
 void ft_control_callback(const void *m, void *d) {
-    ft_run *R = FT_ACTIVE();
+    ft_run *R = ft_active;
     if (R == NULL || R->busy || R->status != FT_RUNNING) return;
     const int64_t s = llround((*R->time - R->t0) / R->h);
     if (s == R->last_step) return;           /* a repeated forward pass at the same time */
@@ -551,16 +542,15 @@ void ft_control_callback(const void *m, void *d) {
     }
 }
 
-/* Make R the run the callback serves: 0, or 1 (nothing changed) when another run is active. */
-int32_t ft_run_activate(ft_run *R) { return FT_CAS(NULL, R) ? 0 : 1; }
+/* Make R the run the callback serves in this thread. */
+void ft_run_activate(ft_run *R) { ft_active = R; }
 
-/* R's batch is over: the callback serves no run (nothing changes if R is not the active run). */
-void ft_run_release(ft_run *R) { FT_CAS(R, NULL); }
-
-/* After mj_step(nstep) returned: the increment of the last step done (integrating plants). */
+/* After mj_step(nstep) returned: the increment of the last step done (integrating plants), and R
+ * is no longer served (one call, so that no Python runs between the two). */
 void ft_run_finish(ft_run *R) {
     if (R->integrating && R->status == FT_RUNNING && R->last_step >= 0)
         for (int i = 0; i < R->n; i++) R->qfrc_applied[i] += R->force[R->last_step * R->n + i];
+    if (ft_active == R) ft_active = NULL;
 }
 
 int64_t ft_run_size(void) { return (int64_t)sizeof(ft_run); }

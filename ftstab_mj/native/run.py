@@ -22,7 +22,6 @@ import mujoco
 import numpy as np
 
 from ftstab_mj import native
-from ftstab_mj.callback import CallbackBusy
 from ftstab_mj.native import FtInput, FtLaw, pack_law
 
 MAXLOOPS = 8  # FT_MAXLOOPS in kernel.c
@@ -57,10 +56,9 @@ def _lib():
     if not hasattr(lib, "_ft_run_ready"):
         if lib.ft_run_size() != ctypes.sizeof(FtRun):
             raise native.NativeUnavailable("the C kernel does not match this ftstab_mj version (rebuild it)")
-        for name in ("ft_run_activate", "ft_run_release", "ft_run_finish"):
+        for name in ("ft_run_activate", "ft_run_finish"):
             getattr(lib, name).argtypes = [_p]
             getattr(lib, name).restype = None
-        lib.ft_run_activate.restype = _i32
         lib._ft_run_ready = True
     return lib
 
@@ -169,14 +167,15 @@ class NativeRun:
         for i, a in enumerate(rec):
             R.rec[i] = a.ctypes.data
         R.last_step, R.row, R.status = -1, -1, 0
-        if self.lib.ft_run_activate(ctypes.byref(R)):  # the kernel serves one run per process
-            raise CallbackBusy("cannot step a native batch: another simulation's native batch is stepping in "
-                               "this process (one simulation at a time per process)")
         try:
+            self.lib.ft_run_activate(ctypes.byref(R))  # the run this thread's callback calls serve
             mujoco.mj_step(m, d, nstep=int(R.nsteps))
-        finally:  # also on Ctrl-C (raised right after mj_step): the last step's force increment is applied
-            self.lib.ft_run_finish(ctypes.byref(R))
-            self.lib.ft_run_release(ctypes.byref(R))
+        finally:  # also on Ctrl-C (raised right after mj_step): the last step's force increment is
+            self.lib.ft_run_finish(ctypes.byref(R))  # applied, and R is no longer served
+
+    def clear_rows(self) -> None:
+        """No sample recorded (:attr:`rows` = 0) until the next batch records one."""
+        self.run.row = -1
 
     @property
     def rows(self) -> int:
