@@ -39,13 +39,14 @@ installed before the run is always put back (:func:`control_callback`).
 
 from __future__ import annotations
 
+from contextlib import contextmanager
 from dataclasses import dataclass
 
 import mujoco
 import numpy as np
 
 from ftstab_mj import native as native_path
-from ftstab_mj.callback import control_callback, slot_owner
+from ftstab_mj.callback import control_callback, slot_owner, timer_off
 from ftstab_mj.errors import CallbackError, ParameterError
 from ftstab_mj.native import run as native_run
 from ftstab_mj.plants.base import Plant
@@ -198,9 +199,12 @@ class Simulation:
         mujoco.mj_setState(self.model, self.data, np.asarray(state, dtype=float), mujoco.mjtState.mjSTATE_INTEGRATION)
         self.stop_reason = ""
 
+    @contextmanager
     def installed(self):
-        """Context manager installing this simulation's control callback (previous one restored)."""
-        return control_callback(self.callback, owner=self)
+        """Context manager installing this simulation's control callback (previous one restored),
+        with MuJoCo's profiling timer off meanwhile (callback.timer_off: half of a bare step)."""
+        with control_callback(self.callback, owner=self), timer_off():
+            yield
 
     # -- running ----------------------------------------------------------------------------------
     def advance(self, n_samples: int) -> SampleBatch:

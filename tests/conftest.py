@@ -25,14 +25,22 @@ def pytest_configure(config):
 
 @pytest.fixture(autouse=True)
 def no_control_callback_left_installed():
-    """After every test, MuJoCo's global control callback is what it was before (None)."""
+    """After every test, MuJoCo's global control callback is what it was before (None), and so is
+    its timer callback (mjcb_time, which runs switch off)."""
     import mujoco
 
+    from ftstab_mj.callback import _timer_slot
+
+    timer = _timer_slot()
+    timer_before = timer.value if timer is not None else None
     before = mujoco.get_mjcb_control()
     yield
     after = mujoco.get_mjcb_control()
     mujoco.set_mjcb_control(before)  # put it back so one failure does not cascade
     assert after is before, f"a test left a MuJoCo control callback installed: {after!r}"
+    if timer is not None:
+        timer_after, timer.value = timer.value, timer_before
+        assert timer_after == timer_before, "a test left MuJoCo's timer callback (mjcb_time) changed"
 
 
 def _sigint_default():
