@@ -108,6 +108,47 @@ def chattering(u_final, period):
     return _num(np.sum(np.abs(np.diff(u_final))) / (len(u_final) * period))
 
 
+def du_dt_variance(u_final, period):
+    """Chattering: variance of the control rate du/dt = (u_{k+1} - u_k) / h over the final window.
+
+    Units: (u units per second)^2. 0 for a window of fewer than two samples.
+    """
+    if len(u_final) < 2:
+        return 0.0
+    return _num(np.var(np.diff(u_final) / period))
+
+
+def zero_crossing_rate(u_final, period):
+    """Chattering: sign changes of u per second over the final window (Hz).
+
+    A sign change is counted between consecutive non-zero samples of opposite sign (exact zeros are
+    skipped, so 1, 0, -1 is one change). Over m samples of period h the rate is changes / (m h).
+    """
+    s = np.sign(u_final[np.isfinite(u_final)])
+    s = s[s != 0]
+    return _num(np.count_nonzero(s[1:] != s[:-1]) / (len(u_final) * period))
+
+
+def band_rms(u_final, period, band):
+    """Chattering: RMS of u in the frequency band (low, high) Hz over the final window, from its FFT.
+
+    With U_j = FFT(u)_j of m samples, |U_j| 2 / m is the amplitude of the sinusoid at f_j = j / (m h),
+    and I = sqrt(sum_{low <= f_j <= high, 0 < f_j} (2 |U_j| / m)^2 / 2): a sinusoid of amplitude A inside
+    the band gives A / sqrt(2), its RMS (the Nyquist bin, without a mirror, counts once: (|U|/m)^2).
+    The mean (f = 0) is never counted. Units: u units. The band is clipped to the Nyquist frequency.
+    """
+    m = len(u_final)
+    if m < 2:
+        return 0.0
+    U = np.fft.rfft(u_final)
+    f = np.fft.rfftfreq(m, period)
+    amp2 = (2.0 * np.abs(U) / m) ** 2 / 2.0
+    if m % 2 == 0:
+        amp2[-1] = (np.abs(U[-1]) / m) ** 2  # the Nyquist bin has no mirror image
+    sel = (f > 0.0) & (f >= band[0]) & (f <= band[1])
+    return _num(np.sqrt(np.sum(amp2[sel])))
+
+
 def effort(u, period):
     """Control effort over the whole run with u held per period h.
 
@@ -211,6 +252,9 @@ def loop_metrics(info: RunInfo, loop, arrays: dict) -> dict:
         "final_window_start": float(t[win][0]),
         "final_abs_z_max": final_abs_max(a["z"][win]),
         "chattering": chattering(u[win], h),
+        "chattering_du_dt_var": du_dt_variance(u[win], h),
+        "chattering_zero_crossings": zero_crossing_rate(u[win], h),
+        "chattering_band_rms": band_rms(u[win], h, ms.chatter_band),
         "effort_abs": e_abs,
         "effort_sq": e_sq,
         "u_max_abs": u_max,

@@ -53,10 +53,12 @@ class LoopInfo:
 @dataclass(frozen=True)
 class MetricSettings:
     """How metrics read a run. settle_level: V1 below it counts as settled; final_fraction: the
-    last part of the run over which accuracy and chattering are measured."""
+    last part of the run over which accuracy and chattering are measured; chatter_band: (low, high)
+    in Hz, the band of the band-RMS chattering index (clipped to the Nyquist frequency 1 / (2 period))."""
 
     settle_level: float = 1e-4
     final_fraction: float = 0.2
+    chatter_band: tuple[float, ...] = (10.0, 1000.0)
 
 
 @dataclass(frozen=True)
@@ -86,7 +88,8 @@ class RunInfo:
         return cls(
             scenario=d["scenario"], loops=tuple(LoopInfo(**lp) for lp in d["loops"]),
             period=float(d["period"]), physics_step=float(d["physics_step"]),
-            metric_settings=MetricSettings(**d.get("metric_settings", {})),
+            metric_settings=MetricSettings(**{k: tuple(v) if isinstance(v, list) else v
+                                              for k, v in d.get("metric_settings", {}).items()}),
             model_xml=d.get("model_xml"), body_names=tuple(d.get("body_names", ())))
 
 

@@ -197,8 +197,13 @@ class Scenario:
 
 
 # Range checks of classes defined elsewhere (their own constructors check the rest).
+def frequency_band(v):
+    ok = len(v) == 2 and 0 <= v[0] < v[1]
+    return None if ok else "two frequencies [low, high] in Hz with 0 <= low < high"
+
+
 EXTERNAL_CHECKS = {
-    MetricSettings: {"settle_level": positive, "final_fraction": fraction},
+    MetricSettings: {"settle_level": positive, "final_fraction": fraction, "chatter_band": frequency_band},
 }
 # Fields of Signal that a scenario does not set: the seed is derived from Scenario.seed.
 SIGNAL_DERIVED = ("seed",)
