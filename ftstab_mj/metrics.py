@@ -245,6 +245,8 @@ def loop_metrics(info: RunInfo, loop, arrays: dict) -> dict:
         "V1_final": _num(V1[-1]),
         "settle_level": ms.settle_level,
         "settle_time": ts,
+        # the same definition on |z_1| (law-independent: a rival law may have no V1)
+        "settle_time_z1": settle_time(t, np.abs(a["z"][:, 0]), ms.settle_z1),
         "time_bound": tb,
         "workspace_left": left,
         "bound_applies": applies,

@@ -54,11 +54,14 @@ class LoopInfo:
 class MetricSettings:
     """How metrics read a run. settle_level: V1 below it counts as settled; final_fraction: the
     last part of the run over which accuracy and chattering are measured; chatter_band: (low, high)
-    in Hz, the band of the band-RMS chattering index (clipped to the Nyquist frequency 1 / (2 period))."""
+    in Hz, the band of the band-RMS chattering index (clipped to the Nyquist frequency 1 / (2 period));
+    settle_z1: |z_1| below it (chain units, m or rad) counts as settled for the law-independent
+    settling time (every law has z_1, not every law has V1)."""
 
     settle_level: float = 1e-4
     final_fraction: float = 0.2
     chatter_band: tuple[float, ...] = (10.0, 1000.0)
+    settle_z1: float = 1e-3
 
 
 @dataclass(frozen=True)

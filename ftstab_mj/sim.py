@@ -102,7 +102,8 @@ class Simulation:
             raise ParameterError("divergence_limit", "a number > 0", divergence_limit)
         self.divergence_limit = float(divergence_limit)
         self.plant = plant
-        self.loops, self.laws = self._check_loops(plant, loops)
+        self.loops, laws = self._check_loops(plant, loops)
+        self.laws = tuple(law.for_period(self.period) for law in laws)  # implicit discretizations need h
         n, r = plant.n, plant.r
         # each law's state in userdata: loop i at state_slices[i]
         ends = np.cumsum([0] + [law.state_size for law in self.laws])

@@ -1,5 +1,6 @@
-"""The rival laws (control/rivals.py) and the implicit discretization (control/implicit.py) on the
-exact ideal chain: each law's defining property, against the literature's formulas and orders."""
+"""The rival laws (control/laws/levant.py, sliding_surface.py, linear.py) and the implicit discretization
+(control/implicit.py) on the exact ideal chain: each law's defining property, against the literature's
+formulas and orders. The laws run through the Law protocol (evaluate, advance, for_period) as the run loop does."""
 
 import numpy as np
 import pytest
@@ -7,32 +8,36 @@ import pytest
 from ftstab_mj import metrics
 from ftstab_mj.control import HongController, RobustLaw, gains_for_polynomial
 from ftstab_mj.control.hong import sig
-from ftstab_mj.control.implicit import ImplicitRobustLaw, sign_step, super_twisting_step
-from ftstab_mj.control.rivals import (LevantNested, LevantQuasiContinuous, LinearLaw, PlestanAdaptive,
-                                      SuperTwisting)
+from ftstab_mj.control.implicit import sign_step, super_twisting_step
+from ftstab_mj.control.laws.levant import LevantNested, LevantQuasiContinuous
+from ftstab_mj.control.laws.linear import LinearLaw
+from ftstab_mj.control.laws.sliding_surface import PlestanAdaptive, SuperTwisting
 from ftstab_mj.errors import ParameterError
 from ftstab_mj.ideal_chain import chain_transition
 
 PERIODS = (1e-3, 2e-3, 4e-3, 8e-3)
 
 
-def zoh_run(law, z0, h, duration, phi, gamma=1.0, state=0.0):
-    """The chain z_r' = phi(t) + gamma u with u and phi held over each period h, integrated exactly.
+def zoh_run(law, z0, h, duration, phi, gamma=1.0):
+    """The chain z_r' = phi(t) + gamma u with u and phi held over each period h, integrated exactly,
+    the law run as the run loop runs it (for_period, evaluate, advance).
 
     z0 (r,) or a batch (B, r); phi(t) and gamma scalars or (B,) (one per batch member).
-    Returns t (n,), z (n, ..., r) at the samples, u (n, ...), state (n, ...)."""
+    Returns t (n,), z (n, ..., r) at the samples, u (n, ...), the law's first state (n, ...) (0 if none)."""
+    law = law.for_period(h)
     z = np.array(z0, dtype=float)
     r = z.shape[-1]
     Phi, G = chain_transition(r, h)
     n = int(round(duration / h))
-    x = np.broadcast_to(np.asarray(state, dtype=float), z.shape[:-1]) + 0.0
+    x = np.broadcast_to(law.initial_state(), z.shape[:-1] + (law.state_size,)) + 0.0
     t = np.arange(n) * h
-    Z, U, X = np.empty((n,) + z.shape), np.empty((n,) + z.shape[:-1]), np.empty((n,) + z.shape[:-1])
+    Z, U, X = np.empty((n,) + z.shape), np.empty((n,) + z.shape[:-1]), np.zeros((n,) + z.shape[:-1])
     for k in range(n):
-        out = law.output(z, x)
-        Z[k], U[k], X[k] = z, out.u, x
-        if hasattr(law, "advance"):
-            x = law.advance(z, x, h)
+        out = law.evaluate(z, x)
+        Z[k], U[k] = z, out.u
+        if law.state_size:
+            X[k] = x[..., 0]
+        x = law.advance(z, x, out, h)
         z = z @ Phi.T + (phi(t[k]) + gamma * out.u)[..., None] * G
     return t, Z, U, X
 
@@ -75,8 +80,8 @@ def test_levant_laws_equal_the_published_closed_forms():
     }
     for r in (2, 3, 4):
         alpha = 2.5
-        np.testing.assert_array_equal(LevantNested(r, alpha).output(z[:, :r]).u, -alpha * nested[r])
-        np.testing.assert_allclose(LevantQuasiContinuous(r, alpha).output(z[:, :r]).u, -alpha * qc[r],
+        np.testing.assert_array_equal(LevantNested(r, alpha).evaluate(z[:, :r]).u, -alpha * nested[r])
+        np.testing.assert_allclose(LevantQuasiContinuous(r, alpha).evaluate(z[:, :r]).u, -alpha * qc[r],
                                    rtol=1e-12, atol=1e-15)
 
 
@@ -85,8 +90,8 @@ def test_levant_output_is_zero_at_the_origin_and_bounded_by_alpha(law_cls):
     rng = np.random.default_rng(1)
     for r in (1, 2, 3, 4):
         law = law_cls(r, 3.0)
-        assert law.output(np.zeros(r)).u == 0.0
-        u = law.output(rng.normal(size=(500, r))).u
+        assert law.evaluate(np.zeros(r)).u == 0.0
+        u = law.evaluate(rng.normal(size=(500, r))).u
         assert np.all(np.abs(u) <= 3.0 * (1 + 1e-15))
 
 
@@ -178,7 +183,7 @@ def test_plestan_gain_adapts_to_the_disturbance_and_holds_the_eps_band():
     |s| stays O(eps); K stays bounded and >= mu."""
     phi = sine(0.5, 1.0, 0.2)
     law = PlestanAdaptive(2, (2.0,), Kbar=5.0, mu=0.05, eps=0.02)
-    t, Z, U, K = zoh_run(law, (1.0, 0.0), 1e-3, 10.0, phi, state=law.K0)
+    t, Z, U, K = zoh_run(law, (1.0, 0.0), 1e-3, 10.0, phi)
     s = Z[:, 1] + 2.0 * Z[:, 0]
     assert np.max(np.abs(final(s))) <= 2 * law.eps
     assert np.min(K) >= law.mu * (1 - 1e-12) and np.max(final(K)) >= 0.7 and np.max(K) < 10.0
@@ -187,7 +192,7 @@ def test_plestan_gain_adapts_to_the_disturbance_and_holds_the_eps_band():
 def test_plestan_state_derivative_follows_the_paper():
     law = PlestanAdaptive(2, (1.0,), Kbar=3.0, mu=0.1, eps=0.5)
     z = np.array([[1.0, 0.0], [0.2, 0.0], [1.0, 0.0]])  # s = 1, 0.2, 1
-    np.testing.assert_allclose(law.state_derivative(z, np.array([1.0, 1.0, 0.05])), [3.0, -0.6, 0.1])
+    np.testing.assert_allclose(law.state_derivative(z, np.array([[1.0], [1.0], [0.05]]), None), [[3.0], [-0.6], [0.1]])
 
 
 # --- the linear law is Hong's k = 0 law -----------------------------------------------------------
@@ -198,7 +203,7 @@ def test_linear_law_equals_hong_at_k0_with_matching_gains(poles):
     lin = LinearLaw(poles)
     hong = HongController(r, 0.0, gains_for_polynomial(np.poly(poles)))
     z = np.random.default_rng(r).normal(size=(1000, r)) * 3.0
-    u_lin, u_hong = lin.output(z).u, hong.u0(z)
+    u_lin, u_hong = lin.evaluate(z).u, hong.u0(z)
     assert np.max(np.abs(u_lin - u_hong)) <= 1e-12 * max(1.0, np.max(np.abs(u_hong)))
     A = np.eye(r, k=1)
     A[-1] = -lin.K
@@ -246,11 +251,11 @@ def test_implicit_robust_law_removes_numerical_chattering(r, h):
     phi = sine(0.5, 1.0)
     gamma = np.array([0.8, 1.0, 1.2])  # one batch member per true gain
     tv = {}
-    for law in (RobustLaw(hong, 0.5, 0.8), ImplicitRobustLaw(hong, 0.5, 0.8, h)):
-        t, Z, U, _ = zoh_run(law, np.tile(z0, (3, 1)), h, 6.0, phi, gamma)
-        tv[type(law).__name__] = np.array([metrics.chattering(final(U[:, j]), h) for j in range(3)])
-    assert np.all(tv["RobustLaw"] >= 10 * tv["ImplicitRobustLaw"]), tv
-    assert np.all(tv["ImplicitRobustLaw"] <= 1.1 * 4 * 0.5 * 1.0 / gamma), tv
+    for disc in ("explicit", "implicit"):
+        t, Z, U, _ = zoh_run(RobustLaw(hong, 0.5, 0.8, disc), np.tile(z0, (3, 1)), h, 6.0, phi, gamma)
+        tv[disc] = np.array([metrics.chattering(final(U[:, j]), h) for j in range(3)])
+    assert np.all(tv["explicit"] >= 10 * tv["implicit"]), tv
+    assert np.all(tv["implicit"] <= 1.1 * 4 * 0.5 * 1.0 / gamma), tv
 
 
 @pytest.mark.parametrize("r", [2, 3])
@@ -264,7 +269,7 @@ def test_implicit_robust_law_reaches_the_equivalent_control(r):
     duration = {2: 10.0, 3: 30.0}[r]
     gamma, phi0 = np.array([0.8, 1.0, 1.3]), np.array([0.4, -0.3, 0.5])  # a batch of (gamma, phi)
     z0 = np.tile(z0, (3, 1))
-    t, Z, U, _ = zoh_run(ImplicitRobustLaw(hong, phibar, gm, h), z0, h, duration, lambda t: phi0, gamma)
+    t, Z, U, _ = zoh_run(RobustLaw(hong, phibar, gm, "implicit"), z0, h, duration, lambda t: phi0, gamma)
     np.testing.assert_allclose(final(U, 0.05), np.broadcast_to(-phi0 / gamma, final(U, 0.05).shape), rtol=1e-8)
     t, Z, U, _ = zoh_run(RobustLaw(hong, phibar, gm), z0, h, 10.0, lambda t: phi0, gamma)
     assert np.all(np.ptp(final(U), axis=0) > phibar / gm)
@@ -278,7 +283,7 @@ def test_implicit_robust_law_tracks_a_moving_equivalent_control_to_order_h():
     phi = sine(0.5, 1.0)
     err = []
     for h in PERIODS:
-        t, Z, U, _ = zoh_run(ImplicitRobustLaw(hong, 0.5, 0.8, h), z0, h, 8.0, phi, 1.0)
+        t, Z, U, _ = zoh_run(RobustLaw(hong, 0.5, 0.8, "implicit"), z0, h, 8.0, phi, 1.0)
         err.append(np.max(np.abs(final(U) + final(phi(t)))))
     assert abs(slope(PERIODS, err) - 0.75) <= 0.15, err
 
@@ -292,12 +297,10 @@ def test_implicit_surface_laws_remove_numerical_chattering(law):
     tv = {}
     for disc in ("explicit", "implicit"):
         if law == "super_twisting":
-            L = SuperTwisting.from_bound(2, (2.0,), np.pi, discretization=disc, period=h)
-            x0 = 0.0
+            L = SuperTwisting.from_bound(2, (2.0,), np.pi, discretization=disc)
         else:
-            L = PlestanAdaptive(2, (2.0,), Kbar=5.0, mu=0.05, eps=0.02, discretization=disc, period=h)
-            x0 = L.K0
-        t, Z, U, _ = zoh_run(L, (1.0, 0.0), h, 8.0, phi, 1.0, x0)
+            L = PlestanAdaptive(2, (2.0,), disc, Kbar=5.0, mu=0.05, eps=0.02)
+        t, Z, U, _ = zoh_run(L, (1.0, 0.0), h, 8.0, phi, 1.0)
         tv[disc] = metrics.chattering(final(U), h)
     assert tv["implicit"] <= 1.1 * 4 * 0.5 * 1.0, tv
     if law == "plestan_adaptive":
@@ -310,8 +313,8 @@ def test_bad_parameters_name_the_parameter():
     with pytest.raises(ParameterError, match="r"):
         LevantNested(5, 1.0)
     with pytest.raises(ParameterError, match="surface"):
-        SuperTwisting(3, (1.0,), 1.0, 1.0)
-    with pytest.raises(ParameterError, match="period"):
-        SuperTwisting(2, (1.0,), 1.0, 1.0, discretization="implicit")
+        SuperTwisting(3, (1.0,), k1=1.0, k2=1.0)
+    with pytest.raises(ParameterError, match="period"):  # implicit without for_period(h)
+        SuperTwisting(2, (1.0,), "implicit", k1=1.0, k2=1.0).evaluate(np.zeros(2), np.zeros(1))
     with pytest.raises(ParameterError, match="discretization"):
-        PlestanAdaptive(2, (1.0,), 1.0, 0.1, 0.1, discretization="backward")
+        PlestanAdaptive(2, (1.0,), "backward", Kbar=1.0, mu=0.1, eps=0.1)

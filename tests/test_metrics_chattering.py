@@ -52,3 +52,15 @@ def test_indices_are_in_the_run_metrics_with_the_scenario_band():
     assert m["chattering_du_dt_var"] == pytest.approx((2 * a / h) ** 2 * (1 - 1 / 19 ** 2))  # 20 samples
     assert m["chattering_band_rms"] == pytest.approx(0.0, abs=1e-12)  # all of it at 50 Hz, outside (1, 20)
     assert RunInfo.from_dict(info.to_dict()) == info  # the band survives the log's JSON round trip
+
+
+def test_settle_time_z1_is_the_settle_time_of_abs_z1():
+    n, h = 100, 0.01
+    z = np.zeros((n, 2))
+    z[:, 0] = np.where(np.arange(n) < 37, 0.5, 2e-4)
+    z[50, 0] = -2e-3  # one excursion beyond 1 mm (the default settle_z1)
+    info = RunInfo(scenario={}, loops=(LoopInfo("a", 2, "nominal", dict(HONG2), {}, 0.0, 1.0, 1.0),), period=h,
+                   physics_step=h)
+    arrays = {f: np.zeros(n) for f in LOOP_FIELDS}
+    arrays.update(t=np.arange(n) * h, z=z)
+    assert compute_metrics(info, {"a": arrays}, COMPLETED)["loops"]["a"]["settle_time_z1"] == pytest.approx(0.51)

@@ -18,7 +18,7 @@ it contracts for 0 < b_true < 2 b.
 
 Two uses here:
 
-* :class:`ImplicitRobustLaw`: the paper's robust law u = u0 / gamma_m - (phibar / gamma_m) sign(sigma)
+* the robust law (laws/paper.py, ``discretization = "implicit"``): the paper's robust law u = u0 / gamma_m - (phibar / gamma_m) sign(sigma)
   with sigma = z_r - v_{r-1}(z) (sign(u0) = -sign(sigma): u0 = -l_r sig(sig(z_r) - sig(v_{r-1}))),
   whose derivative is sigma' = phi + gamma u - d v_{r-1}/dt. The prediction keeps the known
   continuous part u0 / gamma_m and the nominal gain gamma_m, and leaves phi and d v_{r-1}/dt out:
@@ -30,13 +30,21 @@ Two uses here:
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
-from ftstab_mj.control.hong import HongController
-from ftstab_mj.control.laws import LawOutput
+from ftstab_mj.control.law import Param, one_of
 from ftstab_mj.errors import ParameterError
+
+DISCRETIZATIONS = ("explicit", "implicit")
+DISCRETIZATION = Param("discretization", str, "discretization of the sign term: explicit sign(sigma_k) or "
+                       "implicit (Acary-Brogliato: the sign at the predicted next sample)",
+                       check=one_of(*DISCRETIZATIONS), default="explicit")
+
+
+def check_discretization(d) -> str:
+    if d not in DISCRETIZATIONS:
+        raise ParameterError("discretization", "one of " + ", ".join(repr(x) for x in DISCRETIZATIONS), d)
+    return d
 
 
 def sign_step(sigma, a, K, h, b=1.0):
@@ -60,43 +68,3 @@ def super_twisting_step(s, v, k1, k2, h):
     s_next = np.where(inside, 0.0, np.sign(m) * y * y)
     v_next = np.where(inside, -s / h, v - h * k2 * np.sign(m))
     return (s_next - s) / h, v_next
-
-
-@dataclass(frozen=True)
-class ImplicitRobustLaw:
-    """Theorem 2's robust law with its sign term discretized implicitly (module docstring).
-
-    hong: Hong's controller; phibar (>= 0), gamma_m (> 0): the assumed bounds, chain units;
-    period: the control period h (s) the prediction uses.
-    """
-
-    hong: HongController
-    phibar: float
-    gamma_m: float
-    period: float
-    adaptive = False
-    name = "robust"
-    discretization = "implicit"
-
-    def __post_init__(self):
-        for name, lo in (("phibar", 0.0), ("gamma_m", None), ("period", None)):
-            v = getattr(self, name)
-            ok = isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool) and np.isfinite(v)
-            if not ok or (v < 0 if lo == 0.0 else v <= 0):
-                raise ParameterError(name, "a finite number " + (">= 0" if lo == 0.0 else "> 0"), v)
-            object.__setattr__(self, name, float(v))
-
-    def sigma(self, z):
-        """sigma = z_r - v_{r-1}(z), shape (...): the surface whose sign the robust term switches on."""
-        z, v = self.hong._chain(z)
-        return z[..., -1] - v[-2]
-
-    def output(self, z, phi_hat=0.0) -> LawOutput:
-        u0, V1, dV = self.hong.evaluate(z)
-        g = 1.0 / self.gamma_m
-        P = self.phibar * g
-        w = sign_step(self.sigma(z), u0, P, self.period, self.gamma_m)
-        return LawOutput(g * u0 + w, u0, V1, dV, np.full_like(u0, g), np.full_like(u0, P))
-
-    def state_derivative(self, V1, phi_hat):
-        return np.zeros(np.broadcast(V1, phi_hat).shape)

@@ -21,6 +21,7 @@ The protocol (shapes: z (..., r) chain state, state (..., m) with m = ``law.stat
 * ``advance(z, state, out, h)``: the state one control period h later with z held over the period
   (zero-order hold, what a sampled controller does). Default: x + h f, exact when f does not depend
   on x; a law whose f does (the adaptive phi_hat) integrates it itself.
+* ``for_period(h)``: the law as run with control period h (default: itself); the run loop calls it once.
 * The run loop keeps the state in MuJoCo's userdata (``state_size`` slots per loop), so a saved
   simulation state (mjSTATE_INTEGRATION) holds it and save/restore is exact.
 """
@@ -114,6 +115,11 @@ class Law:
 
     def advance(self, z, state, out: LawOutput, h: float) -> np.ndarray:
         return np.asarray(state, dtype=float) + h * self.state_derivative(z, state, out)
+
+    def for_period(self, h: float) -> "Law":
+        """The law as run with control period h (s). A law whose discrete form depends on the period
+        (an implicit discretization) returns a copy that knows it; the run loop calls this once."""
+        return self
 
     def base_info(self) -> dict:
         """Parameters of the underlying controller (LoopInfo.hong), {} when the law has none."""

@@ -110,6 +110,8 @@ def _unsupported(law) -> str:
         return f"the C kernel does not know the law type {type(law).__name__}"
     if law.r > RMAX:
         return f"the C kernel handles r <= {RMAX}, got r = {law.r}"
+    if getattr(law, "discretization", "explicit") != "explicit":
+        return f"the C kernel has only the explicit discretization, not {law.discretization!r}"
     return ""
 
 
@@ -124,7 +126,12 @@ def pack_law(law, substeps: int = RK4_SUBSTEPS) -> FtLaw:
     p.beta[: h.r] = h.beta.tolist()
     p.expo[: h.r] = h.expo.tolist()
     p.law = law.native_code
+    fields = {f[0] for f in FtLaw._fields_}
     for name, value in law.param_values().items():  # the law's own parameters, by name (FtLaw fields)
+        if name == "discretization":  # explicit (checked above): the kernel's only one
+            continue
+        if name not in fields:  # a ctypes Structure would silently keep an unknown attribute
+            raise NativeUnavailable(f"the C kernel's law record has no field {name!r} (law {law.name!r})")
         setattr(p, name, value)
     return p
 

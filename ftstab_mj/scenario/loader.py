@@ -272,11 +272,12 @@ def _computed_bounds(sc: Scenario, plant, rd: _Reader) -> Scenario:
 
 def _check_law_params(c: ControllerSpec, path: str, rd: _Reader) -> None:
     wanted = set(c.law_params())
+    required = {p.name for p in law_class(c.law).all_params() if p.required}  # not those defaulting to None
     for f in fields(ControllerSpec):
         if f.default is not None:  # law parameters are the fields defaulting to None
             continue
         value = getattr(c, f.name)
-        if f.name in wanted and value is None:
+        if f.name in required and value is None:
             raise rd.error(f"{path}.{f.name}", f"a value for the {c.law} law ({f.metadata['doc']})",
                            "nothing: the key is required")
         if f.name not in wanted and value is not None:

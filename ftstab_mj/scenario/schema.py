@@ -203,7 +203,8 @@ def frequency_band(v):
 
 
 EXTERNAL_CHECKS = {
-    MetricSettings: {"settle_level": positive, "final_fraction": fraction, "chatter_band": frequency_band},
+    MetricSettings: {"settle_level": positive, "final_fraction": fraction, "chatter_band": frequency_band,
+                      "settle_z1": positive},
 }
 # Fields of Signal that a scenario does not set: the seed is derived from Scenario.seed.
 SIGNAL_DERIVED = ("seed",)

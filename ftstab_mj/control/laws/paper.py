@@ -18,10 +18,11 @@ use it); ``evaluate(z, state)`` is the protocol's, with state (..., state_size).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
+from ftstab_mj.control import implicit
 from ftstab_mj.control.hong import HongController
 from ftstab_mj.control.law import (Law, LawOutput, Param, non_negative, one_of, open_unit_interval, positive,
                                    register_law)
@@ -38,6 +39,10 @@ def bound(check):
         return check(v)
     return check_bound
 
+
+# Shared with plestan_adaptive (one key, one meaning: the dead zone of an adaptation).
+EPS = Param("eps", float, "adaptation dead zone: adaptive, the V1 level below which phi_hat decays; "
+            "plestan_adaptive, the |s| level below which K decreases", check=positive)
 
 # Hong's controller, the base of the three laws (LoopInfo.hong).
 HONG_PARAMS = (
@@ -98,7 +103,13 @@ class NominalLaw(_HongLaw):
 @register_law
 @dataclass(frozen=True)
 class RobustLaw(_HongLaw):
-    """Theorem 2: u = (u0 + phibar sign(u0)) / gamma_m, for known bounds |phi| <= phibar, gamma >= gamma_m."""
+    """Theorem 2: u = (u0 + phibar sign(u0)) / gamma_m, for known bounds |phi| <= phibar, gamma >= gamma_m.
+
+    discretization "implicit" (control/implicit.py): the sign term -P sign(sigma), P = phibar / gamma_m,
+    sigma = z_r - v_{r-1}(z) (sign(u0) = -sign(sigma)), is taken at the predicted next sample,
+    w = -proj_[-P, P]((sigma + h u0) / (h gamma_m)), u = u0 / gamma_m + w; it needs the control
+    period h (``period``, set by :meth:`for_period`).
+    """
 
     name = "robust"
     summary = "Hong's controller with known bounds, u = (u0 + phibar sign(u0)) / gamma_m (Theorem 2)"
@@ -107,20 +118,35 @@ class RobustLaw(_HongLaw):
               bound(non_negative), plant_bound="phibar"),
         Param("gamma_m", float | str, 'assumed lower bound on gamma, or "computed"', "chain units",
               bound(positive), plant_bound="gamma_m"),
+        implicit.DISCRETIZATION,
     )
     native_code = 1
     hong: HongController
     phibar: float
     gamma_m: float
+    discretization: str = "explicit"
+    period: float | None = None
 
     def __post_init__(self):
         object.__setattr__(self, "phibar", _positive("phibar", self.phibar, allow_zero=True))
         object.__setattr__(self, "gamma_m", _positive("gamma_m", self.gamma_m))
+        implicit.check_discretization(self.discretization)
+        if self.period is not None:
+            object.__setattr__(self, "period", _positive("period", self.period))
+
+    def for_period(self, h):
+        return replace(self, period=h) if self.discretization == "implicit" else self
 
     def output(self, z, phi_hat=0.0) -> LawOutput:
         u0, V1, dV = self.hong.evaluate(z)
         g_hat = np.full_like(u0, 1.0 / self.gamma_m)
         p_hat = np.full_like(u0, self.phibar / self.gamma_m)
+        if self.discretization == "implicit":
+            if self.period is None:
+                raise ParameterError("period", "the control period (implicit discretization: for_period(h))", None)
+            z, v = self.hong._chain(z)
+            w = implicit.sign_step(z[..., -1] - v[-2], u0, p_hat, self.period, self.gamma_m)
+            return LawOutput(g_hat * u0 + w, u0, V1, dV, g_hat, p_hat)
         return LawOutput(g_hat * u0 + p_hat * np.sign(u0), u0, V1, dV, g_hat, p_hat)
 
 
@@ -140,7 +166,7 @@ class AdaptiveLaw(_HongLaw):
         Param("delta", float, "gamma_hat = kappa + delta |u0|", check=positive),
         Param("rate", float, "growth rate of phi_hat (the paper's 'k')", "chain units per s", positive),
         Param("eta", float, "decay exponent of phi_hat", check=open_unit_interval),
-        Param("eps", float, "V1 level below which phi_hat decays", check=positive),
+        EPS,
     )
     native_code = 2
     hong: HongController
