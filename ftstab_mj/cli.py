@@ -85,8 +85,9 @@ def cmd_replay(args) -> int:
     diff = []
     if log.recorded and log.recorded.get("metrics"):  # a failed run records its status without metrics
         rec, now = _flatten(log.recorded["metrics"]), _flatten(metrics)
+        # a metric the recording version did not compute yet (an older log) is not a difference
         diff = [f"  {k}: recorded {rec.get(k)!r}, recomputed {now.get(k)!r}"
-                for k in sorted(set(rec) | set(now)) if rec.get(k) != now.get(k)]
+                for k in sorted(rec) if rec.get(k) != now.get(k)]
     if args.rrd:
         from ftstab_mj.logs.rerun_sink import write_rrd
 
