@@ -17,6 +17,10 @@ from typing import Protocol
 import numpy as np
 
 LOOP_FIELDS = ("t", "z", "u", "u0", "V1", "dV1_dzr", "phi_hat", "gamma_hat", "phi", "gamma")
+# Recorded as well for a loop with a sensor, observer or actuator model (ftstab_mj/loop_stages):
+# what the sensor gave (n, m), what the law saw (n, r), what the plant received (n,). The true z
+# stays in ``z`` and the law's output in ``u``.
+STAGE_FIELDS = ("z_measured", "z_hat", "u_applied")
 
 # Run statuses (the /metrics message carries one).
 COMPLETED = "completed"  # ran for the whole duration

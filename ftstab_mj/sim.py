@@ -48,6 +48,7 @@ import numpy as np
 from ftstab_mj import native as native_path
 from ftstab_mj.callback import control_callback, slot_owner, timer_off
 from ftstab_mj.errors import CallbackError, ParameterError
+from ftstab_mj.loop_stages.pipeline import build_stages
 from ftstab_mj.native import run as native_run
 from ftstab_mj.plants.base import Plant
 from ftstab_mj.records import (COMPLETED, DIVERGED, FAILED, INTERRUPTED, LOOP_FIELDS, LoopInfo,
@@ -62,7 +63,8 @@ _SCALARS = tuple(f for f in LOOP_FIELDS if f not in ("t", "z"))
 
 @dataclass
 class RunResult:
-    """What a run produced. loops: {loop name: {field: array}} (LOOP_FIELDS; z (n, r), others (n,));
+    """What a run produced. loops: {loop name: {field: array}} (LOOP_FIELDS, and STAGE_FIELDS for a loop
+    with stages; z (n, r), z_measured (n, m), z_hat (n, r), others (n,));
     body_pos (n, nbody, 3), body_quat (n, nbody, 4): the same arrays the sinks received."""
 
     status: str
@@ -105,9 +107,16 @@ class Simulation:
         self.loops, laws = self._check_loops(plant, loops)
         self.laws = tuple(law.for_period(self.period) for law in laws)  # implicit discretizations need h
         n, r = plant.n, plant.r
-        # each law's state in userdata: loop i at state_slices[i]
-        ends = np.cumsum([0] + [law.state_size for law in self.laws])
-        self.state_slices = tuple(slice(int(a), int(b)) for a, b in zip(ends[:-1], ends[1:]))
+        # each loop's sensor, observer and actuator (None: the loop reads z and applies u exactly)
+        self.stages = tuple(build_stages(L.sensor, L.observer, L.actuator, r, self.period, self.N, stream=i)
+                            for i, L in enumerate(self.loops))
+        self._staged = any(st is not None for st in self.stages)
+        # userdata: each law's state (loop i at state_slices[i]), then each loop's stage state
+        # (stage_slices[i]), so that mjSTATE_INTEGRATION saves and restores both
+        sizes = [law.state_size for law in self.laws] + [st.state_size if st else 0 for st in self.stages]
+        ends = np.cumsum([0] + sizes)
+        slices = tuple(slice(int(a), int(b)) for a, b in zip(ends[:-1], ends[1:]))
+        self.state_slices, self.stage_slices = slices[:n], slices[n:]
         self.model, self.data, self.model_xml = plant.compile(physics_step, integrator, nuserdata=int(ends[-1]))
         for law, sl in zip(self.laws, self.state_slices):
             self.data.userdata[sl] = law.initial_state()
@@ -119,6 +128,8 @@ class Simulation:
                                    for b in plant.body_names], dtype=int)
         self._z = np.empty((n, r))
         self._u = np.zeros(n)  # control held over the period, chain units
+        self._u_applied = np.zeros(n)  # what the plant receives at the sample (the actuator's output)
+        self._u_steps = np.zeros((self.N, n))  # ... and at each physics step of the period
         # generalized force per unit of injected phi: a force, or (integrating plants) its increment per step
         self._force_factor = plant.dist_scale * (self.physics_step if plant.integrating else 1.0)
         self._pending = False
@@ -140,9 +151,11 @@ class Simulation:
             if native is True:
                 raise native_path.NativeUnavailable(f"native=True but {why}")
             return None
-        return native_run.NativeRun(self.model, self.data, self.plant, self.loops, self.laws, self.state_slices,
-                                    self.refs, self._force_factor, self._body_ids, self.period, self.physics_step, self.N,
-                                    self.divergence_limit)
+        run = native_run.NativeRun(self.model, self.data, self.plant, self.loops, self.laws, self.state_slices,
+                                   self.refs, self._force_factor, self._body_ids, self.period, self.physics_step, self.N,
+                                   self.divergence_limit)
+        run.use_stages(self.stages, self.stage_slices, self.physics_step)
+        return run
 
     @staticmethod
     def _check_loops(plant: Plant, loops) -> tuple[tuple, tuple]:
@@ -217,7 +230,7 @@ class Simulation:
         # d.time is a running float sum of steps, so it drifts from k * period (1e-10 s after 369,000
         # steps of 1e-4 s). Calls only ever happen at step boundaries, and a boundary inside a period
         # is a whole step away from every sample instant: half a step tells them apart.
-        k0 = int(round(d.time / self.period))
+        k0 = self._k0 = int(round(d.time / self.period))
         if abs(d.time - k0 * self.period) > 0.5 * self.physics_step:
             raise RuntimeError(f"advance called between samples (t = {d.time!r}, period {self.period!r})")
         # Sample and step times as the ideal chain computes them (t_k + s * period / N).
@@ -239,6 +252,7 @@ class Simulation:
             self._step_batch(n_samples, warn0)
         else:  # the same work, in C, inside one mj_step(nstep) call
             self._native.clear_rows()  # before the try: the finally below must never see the last batch's count
+            self._native.stage_batch(k0, self._rec)
             try:
                 self._native.run_batch(m, d, self._t, self._inj, self._gain, self._force, self._ctrl, self._rec_t,
                                        self._rec_z, [self._rec_scalars[f] for f in _SCALARS], self._pos, self._quat)
@@ -300,8 +314,13 @@ class Simulation:
         self._rec_scalars = {f: np.empty((n_loops, n_samples)) for f in _SCALARS}
         self._pos = np.empty((n_samples, n_body, 3))
         self._quat = np.empty((n_samples, n_body, 4))
-        self._rec = [{"t": self._rec_t, "z": self._rec_z[i], **{f: a[i] for f, a in self._rec_scalars.items()}}
-                     for i in range(n_loops)]
+        recs = [{"t": self._rec_t, "z": self._rec_z[i], **{f: a[i] for f, a in self._rec_scalars.items()}}
+                for i in range(n_loops)]
+        for rec, st in zip(recs, self.stages):  # a loop with stages also records what its law saw
+            if st is not None:
+                rec.update(z_measured=np.empty((n_samples, st.channels)), z_hat=np.empty((n_samples, st.r)),
+                           u_applied=np.empty(n_samples))
+        self._rec = recs
 
     def take_batch(self) -> SampleBatch:
         """The samples recorded since the batch started (all of them after a normal advance, the
@@ -336,8 +355,10 @@ class Simulation:
             self._stop(d, f"diverged at t = {t:.6g} s: max |z| = {zmax:.3g} is beyond the divergence "
                           f"limit {self.divergence_limit:g}")
             return
-        if not self._control_laws(d, z, row, t):
+        z_law = self._sense(d, z, row)
+        if not self._control_laws(d, z, row, t, z_law):
             return
+        self._actuate(d, row)
         self._inject(m, d, row)
 
     def _read_z(self, d) -> np.ndarray:
@@ -347,13 +368,26 @@ class Simulation:
         z[:, 0] -= self.refs
         return z
 
-    def _control_laws(self, d, z, row: int, t: float) -> bool:
-        """Evaluate every loop's law at z, record its outputs, advance its state; u -> self._u.
-        False (and the run stopped) when a control is not finite."""
+    def _sense(self, d, z, row: int) -> np.ndarray:
+        """What the laws see: z itself, or for a loop with stages its sensor's reading through its
+        observer (loop_stages.LoopStages.measure; z_measured and z_hat recorded)."""
+        if not self._staged:
+            return z
+        z_law, k, ud = z.copy(), self._k0 + row, d.userdata
+        for i, (st, sl, rec) in enumerate(zip(self.stages, self.stage_slices, self._rec)):
+            if st is not None:
+                z_meas, z_law[i] = st.measure(z[i], k, ud[sl])
+                rec["z_measured"][row] = z_meas
+                rec["z_hat"][row] = z_law[i]
+        return z_law
+
+    def _control_laws(self, d, z, row: int, t: float, z_law) -> bool:
+        """Evaluate every loop's law at z_law (what it sees), record its outputs with the true z,
+        advance its state; u -> self._u. False (and the run stopped) when a control is not finite."""
         s, ud = self._s, d.userdata
         for i, (law, L, rec, sl) in enumerate(zip(self.laws, self.loops, self._rec, self.state_slices)):
             state = ud[sl]
-            out = law.evaluate(z[i], state)
+            out = law.evaluate(z_law[i], state)
             if L.disturbance.state_dependent:  # worst case: held over the period with this sample's dV1/dz_r
                 value = float(L.disturbance(t, out.dV1_dzr))
                 self._inj[s:s + self.N, i] = value
@@ -371,18 +405,32 @@ class Simulation:
             rec["dV1_dzr"][row] = out.dV1_dzr
             rec["phi_hat"][row] = out.phi_hat  # the law's (robust: phibar / gamma_m), as the ideal chain logs it
             rec["gamma_hat"][row] = out.gamma_hat
-            ud[sl] = law.advance(z[i], state, out, self.period)
+            ud[sl] = law.advance(z_law[i], state, out, self.period)
         return True
+
+    def _actuate(self, d, row: int) -> None:
+        """What the plant receives over the period: u held, or for a loop with an actuator model its
+        output at each physics step (loop_stages.LoopStages.actuate; u_applied recorded)."""
+        if not self._staged:
+            return
+        k, ud = self._k0 + row, d.userdata
+        self._u_applied[:] = self._u
+        self._u_steps[:] = self._u
+        for i, (st, sl, rec) in enumerate(zip(self.stages, self.stage_slices, self._rec)):
+            if st is not None:
+                self._u_applied[i], self._u_steps[:, i] = st.actuate(self._u[i], k, ud[sl], self.physics_step)
+                rec["u_applied"][row] = self._u_applied[i]
 
     def _inject(self, m, d, row: int) -> None:
         """Write the held control (ctrl = gain u) and the disturbance force; record the true phi,
         gamma and the body poses of this sample."""
         s, n = self._s, self.plant.n
-        self._ctrl[s:s + self.N] = self._gain[s:s + self.N] * self._u  # held u times each step's gain
+        u, u_steps = (self._u_applied, self._u_steps) if self._staged else (self._u, self._u)
+        self._ctrl[s:s + self.N] = self._gain[s:s + self.N] * u_steps  # held u times each step's gain
         d.ctrl[:n] = self._ctrl[s]
         if not self.plant.integrating:
             d.qfrc_applied[:n] = self._force[s]
-        phi, gamma = self.plant.true_chain(m, d, self._u, self._gain[s], self._inj[s])
+        phi, gamma = self.plant.true_chain(m, d, u, self._gain[s], self._inj[s])
         for i, rec in enumerate(self._rec):
             rec["phi"][row] = phi[i]
             rec["gamma"][row] = gamma[i]
@@ -477,7 +525,7 @@ def _close(sinks, status, metrics, message) -> None:
 def _concatenate(batches, sim) -> dict:
     if not batches:
         batches = [sim.take_batch()]
-    loops = {name: {f: np.concatenate([b.loops[name][f] for b in batches]) for f in LOOP_FIELDS}
-             for name in batches[0].loops}
+    loops = {name: {f: np.concatenate([b.loops[name][f] for b in batches]) for f in fields}
+             for name, fields in batches[0].loops.items()}
     return {"loops": loops, "body_pos": np.concatenate([b.body_pos for b in batches]),
             "body_quat": np.concatenate([b.body_quat for b in batches])}

@@ -96,3 +96,33 @@ class LoopStages:
         u_c = self.actuator.command(u, state[act], self.period)
         steps, state[act] = self.actuator.steps(u_c, state[act], physics_step, self.N)
         return float(steps[0]), steps
+
+
+def build_stages(sensor, observer, actuator, r: int, period: float, N: int, stream: int = 0) -> LoopStages | None:
+    """The stages of a loop from its scenario tables (scenario/schema.py SensorSpec, ObserverSpec,
+    ActuatorSpec, each None when absent), or None when every stage is the identity (the run loop
+    then runs the loop exactly as without stages). ParameterError names the stage's key."""
+    if sensor is None and observer is None and actuator is None:
+        return None
+    sens = SensorModel()
+    if sensor is not None:
+        m = r if sensor.measured == "state" else 1
+
+        def per_channel(v):
+            v = tuple(v) if isinstance(v, (tuple, list)) else (float(v),) * m
+            return () if not any(v) else v
+
+        sens = SensorModel(measured=sensor.measured, noise=per_channel(sensor.noise), noise_kind=sensor.noise_kind,
+                           quantum=per_channel(sensor.quantum), delay=int(sensor.delay), seed=int(sensor.seed))
+    obs = None
+    if observer is not None:
+        nf = (1 if observer.filter_order is None else observer.filter_order) if observer.kind == "levant_filtering" else 0
+        obs = LevantDifferentiator(r - 1 if observer.order is None else observer.order, observer.L, nf)
+    act = ActuatorModel()
+    if actuator is not None:
+        inf = float("inf")
+        act = ActuatorModel(u_max=inf if actuator.u_max is None else actuator.u_max,
+                            rate_max=inf if actuator.rate_max is None else actuator.rate_max,
+                            tau=actuator.tau, dead_zone=actuator.dead_zone)
+    stages = LoopStages(sens, obs, act, r=r, period=period, N=N, stream=stream)
+    return None if stages.ideal else stages

@@ -76,18 +76,33 @@ class SensorModel:
     def state_size(self, r: int) -> int:
         return self.delay * self.channels(r)
 
-    def noise_at(self, k: int, m: int, stream: int = 0) -> np.ndarray:
-        """The unit noise (m,) of sample k (before scaling by the amplitudes), stream: the loop's index."""
-        block, i = divmod(int(k), BLOCK)
+    def _block(self, block: int, m: int, stream: int) -> np.ndarray:
         key = (block, m, stream)
         draws = self._cache.get(key)
         if draws is None:
             rng = np.random.default_rng([int(self.seed), int(stream), block])
             draws = (rng.uniform(-1.0, 1.0, (BLOCK, m)) if self.noise_kind == "uniform"
                      else rng.standard_normal((BLOCK, m)))
-            self._cache.clear()  # one block per stream is enough for a run that moves forward
+            if len(self._cache) > 4:  # a run moves forward: a few blocks are enough
+                self._cache.clear()
             self._cache[key] = draws
-        return draws[i]
+        return draws
+
+    def noise_at(self, k: int, m: int, stream: int = 0) -> np.ndarray:
+        """The unit noise (m,) of sample k (before scaling by the amplitudes), stream: the loop's index."""
+        block, i = divmod(int(k), BLOCK)
+        return self._block(block, m, stream)[i]
+
+    def noise_table(self, k0: int, n: int, m: int, stream: int = 0) -> np.ndarray:
+        """The unit noise (n, m) of samples k0..k0+n-1 (the rows :meth:`noise_at` gives)."""
+        out = np.empty((n, m))
+        k = int(k0)
+        while k < k0 + n:
+            block, i = divmod(k, BLOCK)
+            take = min(BLOCK - i, k0 + n - k)
+            out[k - k0:k - k0 + take] = self._block(block, m, stream)[i:i + take]
+            k += take
+        return out
 
     def reading(self, z, k: int, stream: int = 0) -> np.ndarray:
         """Steps 1-3 for sample k: the selected, noisy, quantized components (m,) of z (r,)."""

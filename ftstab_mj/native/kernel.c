@@ -428,6 +428,13 @@ typedef struct {
     int32_t status, bad_loop;
     double bad_value, bad_time;
     int32_t busy;
+    /* the loop stages (loop_stages/pipeline.py LoopStages; stage_on NULL: no loop has any) */
+    ft_stage *stages;            /* (n,) their noise tables are set per batch */
+    const int32_t *stage_on;     /* (n,) 1 when loop i has stages */
+    const int32_t *stage_adr;    /* (n,) userdata index of loop i's stage state */
+    int64_t k0;                  /* index of the batch's first sample since t = 0 */
+    double *u_steps;             /* (N,) scratch: the actuator's output at each step of the period */
+    double *rec_zm[FT_MAXLOOPS], *rec_zh[FT_MAXLOOPS], *rec_ua[FT_MAXLOOPS]; /* (samples, m), (samples, r), (samples,) */
 } ft_run;
 
 static void run_sample(ft_run *R, const void *m, void *d, int64_t s) {
@@ -461,13 +468,26 @@ static void run_sample(ft_run *R, const void *m, void *d, int64_t s) {
         for (int i = 0; i < n; i++) R->ctrl[i] = 0.0;
         return;
     }
+    /* what the laws see: z, or a staged loop's sensor reading through its observer */
+    double zlaw[FT_RMAX * FT_MAXLOOPS];
+    for (int i = 0; i < n; i++) {
+        const int r = R->laws[i].r;
+        if (R->stage_on && R->stage_on[i]) {
+            const ft_stage *S = &R->stages[i];
+            stage_measure(S, R->k0 + row, row, z + i * FT_RMAX, R->userdata + R->stage_adr[i],
+                          R->rec_zm[i] + row * S->m, zlaw + i * FT_RMAX);
+            for (int j = 0; j < r; j++) R->rec_zh[i][row * r + j] = zlaw[i * FT_RMAX + j];
+        } else {
+            for (int j = 0; j < r; j++) zlaw[i * FT_RMAX + j] = z[i * FT_RMAX + j];
+        }
+    }
     ft_out o;
     for (int i = 0; i < n; i++) {
         const ft_law *L = &R->laws[i];
         const int32_t adr = R->state_adr[i];
         const double ph = adr >= 0 ? R->userdata[adr] : 0.0;
         const double *zi = z + i * FT_RMAX;
-        law_eval(L, zi, ph, &o);
+        law_eval(L, zlaw + i * FT_RMAX, ph, &o);
         if (R->phi_state[i]) { /* worst case: held over the period with this sample's dV1/dz_r */
             const double value = input_at(&R->state_phi[i], 0, o.dV1_dzr);
             for (int64_t k = s; k < s + N; k++) {
@@ -491,8 +511,15 @@ static void run_sample(ft_run *R, const void *m, void *d, int64_t s) {
         if (adr >= 0) R->userdata[adr] = advance_phi(L, o.V1, ph, R->period);
     }
     R->rec_t[row] = t;
-    for (int64_t k = s; k < s + N; k++)
-        for (int i = 0; i < n; i++) R->ctrl_steps[k * n + i] = R->gain[k * n + i] * R->u_held[i];
+    for (int i = 0; i < n; i++) {
+        if (R->stage_on && R->stage_on[i]) { /* the actuator's output at each step of the period */
+            R->rec_ua[i][row] = stage_actuate(&R->stages[i], R->k0 + row, R->u_held[i],
+                                              R->userdata + R->stage_adr[i], R->u_steps);
+            for (int64_t k = s; k < s + N; k++) R->ctrl_steps[k * n + i] = R->gain[k * n + i] * R->u_steps[k - s];
+        } else {
+            for (int64_t k = s; k < s + N; k++) R->ctrl_steps[k * n + i] = R->gain[k * n + i] * R->u_held[i];
+        }
+    }
     for (int i = 0; i < n; i++) {
         R->ctrl[i] = R->ctrl_steps[s * n + i];
         if (!R->integrating) R->qfrc_applied[i] = R->force[s * n + i];

@@ -48,6 +48,8 @@ class FtRun(ctypes.Structure):
         ("samples", _i64),
         ("last_step", _i64), ("row", _i64), ("status", _i32), ("bad_loop", _i32),
         ("bad_value", _d), ("bad_time", _d), ("busy", _i32),
+        ("stages", _p), ("stage_on", _p), ("stage_adr", _p), ("k0", _i64), ("u_steps", _p),
+        ("rec_zm", _p * MAXLOOPS), ("rec_zh", _p * MAXLOOPS), ("rec_ua", _p * MAXLOOPS),
     ]
 
 
@@ -153,6 +155,46 @@ class NativeRun:
         R.period, R.h, R.divergence_limit = period, physics_step, divergence_limit
         self.d = d
         self.callback = self.lib.ft_control_callback  # a ctypes function pointer: set_mjcb_control takes it
+
+    def use_stages(self, stages, stage_slices, physics_step: float) -> None:
+        """Run the loops' stages (loop_stages.LoopStages, None for a loop without) in the callback;
+        loop i's stage state lives in userdata[stage_slices[i]]."""
+        from ftstab_mj.native.stages import FtStage, pack_stages
+
+        if all(st is None for st in stages):
+            return
+        n = len(stages)
+        self._stages = stages
+        keep = self._keep
+        keep["stages"] = (FtStage * n)(*(pack_stages(st, physics_step) if st else FtStage() for st in stages))
+        keep["stage_on"] = np.array([st is not None for st in stages], dtype=np.int32)
+        keep["stage_adr"] = np.array([sl.start for sl in stage_slices], dtype=np.int32)
+        keep["u_steps"] = np.zeros(self.run.N)
+        R = self.run
+        R.stages = ctypes.addressof(keep["stages"])
+        for name in ("stage_on", "stage_adr", "u_steps"):
+            setattr(R, name, keep[name].ctypes.data)
+
+    def stage_batch(self, k0: int, recs) -> None:
+        """Before a batch whose first sample is sample k0: each staged loop's noise table and the
+        record arrays of its stage fields (recs: the run loop's per-loop record dicts)."""
+        if getattr(self, "_stages", None) is None:
+            return
+        from ftstab_mj.native.stages import noise_table
+
+        R, tables = self.run, []
+        R.k0 = k0
+        for i, (st, rec) in enumerate(zip(self._stages, recs)):
+            if st is None:
+                continue
+            arrays = [rec[f] for f in ("z_measured", "z_hat", "u_applied")]
+            if not all(a.flags.c_contiguous and a.dtype == np.float64 for a in arrays):
+                raise ValueError("the stage records must be contiguous float64 arrays")
+            R.rec_zm[i], R.rec_zh[i], R.rec_ua[i] = (a.ctypes.data for a in arrays)
+            table = np.ascontiguousarray(noise_table(st, k0, len(rec["u_applied"])))
+            tables.append(table)
+            self._keep["stages"][i].noise = table.ctypes.data
+        self._keep["noise_tables"] = tables
 
     def run_batch(self, m, d, t, inj, gain, force, ctrl_steps, rec_t, rec_z, rec: list, body_pos, body_quat) -> None:
         """Step len(t) periods with mj_step(nstep) (shapes: t (k,); inj, gain, force, ctrl_steps (k N, n);

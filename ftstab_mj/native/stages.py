@@ -71,7 +71,7 @@ def noise_table(st: LoopStages, k0: int, n: int) -> np.ndarray:
     m = st.channels
     if not any(st.sensor.noise):
         return np.zeros((n, m))
-    return np.array([st.sensor.noise_at(k, m, st.stream) for k in range(k0, k0 + n)]).reshape(n, m)
+    return st.sensor.noise_table(k0, n, m, st.stream)
 
 
 def measure(st: LoopStages, k0: int, z: np.ndarray, state: np.ndarray):

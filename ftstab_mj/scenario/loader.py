@@ -29,12 +29,12 @@ from ftstab_mj.control import law_class
 from ftstab_mj.disturbances import Signal
 from ftstab_mj.errors import ParameterError, ScenarioError
 from ftstab_mj.scenario.schema import (
-    COMPUTED, EXTERNAL_CHECKS, SIGNAL_DERIVED, ControllerSpec, LoopSpec, PlantSpec, Scenario,
+    COMPUTED, EXTERNAL_CHECKS, SIGNAL_DERIVED, ControllerSpec, LoopSpec, PlantSpec, Scenario, SensorSpec,
     period_is_multiple,
 )
 from ftstab_mj.tomlfile import read_toml
 
-_SIGNAL_ROLES = {"disturbance": 1, "gain": 2}
+_SIGNAL_ROLES = {"disturbance": 1, "gain": 2, "sensor": 3}
 
 
 def describe(value) -> str:
@@ -107,6 +107,9 @@ class _Reader:
             inner = [a for a in args if a is not type(None)]
             if isinstance(value, str) and str in inner:
                 return value
+            arrays = [a for a in inner if typing.get_origin(a) is tuple]
+            if isinstance(value, list) and arrays:  # "a number or an array": the array form
+                return self.convert(arrays[0], value, path)
             return self.convert(inner[0], value, path)
         if origin is tuple and len(args) == 2 and args[1] is Ellipsis:
             if not isinstance(value, list) or not value:
@@ -147,7 +150,7 @@ class _Reader:
         return out
 
     def table(self, cls, value, path):
-        return cls(**self.fields_of(cls, value, path))
+        return cls(**self.fields_of(cls, value, path, skip=SIGNAL_DERIVED if cls is SensorSpec else ()))
 
     def signal(self, value, path) -> Signal:
         kw = self.fields_of(Signal, value, path, skip=SIGNAL_DERIVED)
@@ -218,9 +221,13 @@ def _check(sc: Scenario, rd: _Reader) -> Scenario:
         if lo <= 0:
             raise rd.error(f"{p}.gain", "gamma(t) > 0 at all times (offset > amplitude)",
                            f"a signal reaching {lo:g}")
+        _check_stages(lp, r, rd)
         seeds = {role: _derived_seed(sc.seed, lp.name, role) for role in _SIGNAL_ROLES}
-        loops.append(replace(lp, disturbance=replace(lp.disturbance, seed=seeds["disturbance"]),
-                             gain=replace(lp.gain, seed=seeds["gain"])))
+        lp = replace(lp, disturbance=replace(lp.disturbance, seed=seeds["disturbance"]),
+                     gain=replace(lp.gain, seed=seeds["gain"]))
+        if lp.sensor is not None:
+            lp = replace(lp, sensor=replace(lp.sensor, seed=seeds["sensor"]))
+        loops.append(lp)
     sc = _computed_bounds(replace(sc, loops=tuple(loops)), plant, rd)
     for lp in sc.loops:  # the law's own validation (after "computed" is resolved), e.g. Hong's k and gains
         try:
@@ -229,6 +236,40 @@ def _check(sc: Scenario, rd: _Reader) -> Scenario:
             name = exc.name.split(" ")[0]  # "gains[1] (l_2)" -> "gains[1]"
             raise rd.error(f"loops.{lp.name}.controller.{name}", exc.allowed, describe(exc.given)) from None
     return sc
+
+
+def _check_stages(lp: LoopSpec, r: int, rd: _Reader) -> None:
+    """The sensor, observer and actuator of a loop fit together and fit its chain length r."""
+    from ftstab_mj.loop_stages.levant import MAX_TOTAL_ORDER
+
+    p = f"loops.{lp.name}"
+    sensor, obs = lp.sensor, lp.observer
+    measured = sensor.measured if sensor is not None else "state"
+    if sensor is not None:
+        m = r if measured == "state" else 1
+        for name in ("noise", "quantum"):
+            v = getattr(sensor, name)
+            if isinstance(v, tuple) and len(v) != m:
+                raise rd.error(f"{p}.sensor.{name}", f"a number or {m} numbers (one per measured channel: "
+                               f"measured = {measured!r}, r = {r})", f"{len(v)} numbers")
+    if measured == "position" and obs is None:
+        raise rd.error(f"{p}.observer", f'a [{p}.observer] table (sensor.measured = "position": the law needs '
+                       f"z_2..z_r, which an observer rebuilds)", "none")
+    if obs is None:
+        return
+    if measured != "position":
+        raise rd.error(f"{p}.sensor.measured", '"position" (the observer rebuilds z_2..z_r from z_1)',
+                       f"{measured!r}" + ("" if sensor is not None else " (the default: no [sensor] table)"))
+    order = r - 1 if obs.order is None else obs.order
+    if order < r - 1:
+        raise rd.error(f"{p}.observer.order", f"an order >= r - 1 = {r - 1}", describe(obs.order))
+    if obs.kind == "levant" and obs.filter_order is not None:
+        raise rd.error(f"{p}.observer.filter_order", 'no filter_order for kind = "levant" (only "levant_filtering")',
+                       describe(obs.filter_order))
+    nf = (1 if obs.filter_order is None else obs.filter_order) if obs.kind == "levant_filtering" else 0
+    if order + nf > MAX_TOTAL_ORDER:
+        raise rd.error(f"{p}.observer.order", f"order + filter_order <= {MAX_TOTAL_ORDER} (the range of Levant's "
+                       "coefficients)", f"{order} + {nf}")
 
 
 def _check_plant(sc: Scenario, rd: _Reader):
@@ -364,6 +405,7 @@ def scenario_to_dict(sc: Scenario) -> dict:
             return {f.name: getattr(obj, f.name) for f in fields(obj)
                     if f.init and not f.name.startswith("_") and f.name not in SIGNAL_DERIVED}
         if is_dataclass(obj):
+            skip = skip + (SIGNAL_DERIVED if isinstance(obj, SensorSpec) else ())
             return {f.name: plain(getattr(obj, f.name)) for f in fields(obj)
                     if f.name not in skip and getattr(obj, f.name) is not None}
         if isinstance(obj, tuple):

@@ -10,6 +10,9 @@ A scenario file (``scenarios/*.toml``) maps onto :class:`Scenario`::
     [loops.<name>.controller]          -> ControllerSpec  (keys: the registered laws' parameters)
     [loops.<name>.disturbance]         -> disturbances.Signal (the injected disturbance)
     [loops.<name>.gain]                -> disturbances.Signal (the actuator gain factor)
+    [loops.<name>.sensor]              -> SensorSpec    (what the controller reads; default: the exact z)
+    [loops.<name>.observer]            -> ObserverSpec  (Levant's differentiator; default: none)
+    [loops.<name>.actuator]            -> ActuatorSpec  (what the plant receives; default: the law's u)
 
 Chain units: for a loop of chain length r, z = (z_1, ..., z_r) are the
 position error (m or rad) and its r - 1 derivatives; phi is in m/s^r (rad/s^r) and gamma in
@@ -159,6 +162,61 @@ def _refresh_controller_spec() -> None:
 on_register(_refresh_controller_spec)
 
 
+# -- the loop stages (ftstab_mj/loop_stages): sensor, observer, actuator ---------------------------
+def whole_periods(v):
+    return None if v >= 0 and float(v).is_integer() else "a whole number of control periods >= 0"
+
+
+def channel_values(v):
+    vals = v if isinstance(v, tuple) else (v,)
+    return None if all(math.isfinite(x) and x >= 0 for x in vals) else "finite numbers >= 0"
+
+
+@dataclass(frozen=True)
+class SensorSpec:
+    """What the controller reads of z (ftstab_mj/loop_stages/sensor.py). A number for noise or
+    quantum applies to every measured channel; an array gives one value per channel."""
+
+    measured: str = field(default="state", metadata=meta(
+        'the components read: "state" (z_1..z_r) or "position" (z_1 only; needs an observer)',
+        one_of("state", "position")))
+    noise: float | tuple[float, ...] = field(default=0.0, metadata=meta(
+        "additive noise amplitude per measured channel (chain units; uniform: half-width, gaussian: std)",
+        channel_values))
+    noise_kind: str = field(default="uniform", metadata=meta("noise distribution", one_of("uniform", "gaussian")))
+    quantum: float | tuple[float, ...] = field(default=0.0, metadata=meta(
+        "quantization step per measured channel (chain units; 0: none)", channel_values))
+    delay: float = field(default=0, metadata=meta("delay of the readings (control periods)", whole_periods))
+    seed: int = 0  # derived from Scenario.seed by the loader (SIGNAL_DERIVED), never set in a file
+
+
+OBSERVER_KINDS = ("levant", "levant_filtering")
+
+
+@dataclass(frozen=True)
+class ObserverSpec:
+    """Levant's robust exact differentiator rebuilding z_2..z_r from the measured z_1
+    (ftstab_mj/loop_stages/levant.py); ``levant_filtering`` is its filtering variant."""
+
+    kind: str = field(metadata=meta("the observer", one_of(*OBSERVER_KINDS)))
+    L: float = field(metadata=meta("bound on |z_1^(order+1)| (chain units: m/s^(order+1))", positive))
+    order: int | None = field(default=None, metadata=meta(
+        "differentiation order n >= r - 1 (default r - 1)", non_negative))
+    filter_order: int | None = field(default=None, metadata=meta(
+        "levant_filtering: filtering order n_f >= 1 (default 1)", positive))
+
+
+@dataclass(frozen=True)
+class ActuatorSpec:
+    """What the plant receives when the law asks for u (ftstab_mj/loop_stages/actuator.py), chain units."""
+
+    u_max: float | None = field(default=None, metadata=meta("saturation |u| <= u_max (default: none)", positive))
+    rate_max: float | None = field(default=None, metadata=meta(
+        "rate limit |du/dt| <= rate_max (per s; default: none)", positive))
+    tau: float = field(default=0.0, metadata=meta("first-order lag time constant (s; 0: none)", non_negative))
+    dead_zone: float = field(default=0.0, metadata=meta("dead-zone half-width (0: none)", non_negative))
+
+
 @dataclass(frozen=True)
 class LoopSpec:
     """One control loop (one actuated joint): initial state, controller, phi(t), gamma(t).
@@ -176,6 +234,9 @@ class LoopSpec:
     gain: Signal = field(default=Signal("constant", 1.0), metadata=meta(
         "actuator gain factor (cart: gamma in chain units; arm: dimensionless); default 1"))
     ref: float = field(default=0.0, metadata=meta("set point of the joint position (m or rad): z_1 = q - ref"))
+    sensor: SensorSpec | None = field(default=None, metadata=meta("the sensor model; default: the exact z"))
+    observer: ObserverSpec | None = field(default=None, metadata=meta("the observer; default: none"))
+    actuator: ActuatorSpec | None = field(default=None, metadata=meta("the actuator model; default: ideal"))
 
     def law(self, r: int):
         """The control law object of this loop for chain length r."""
@@ -206,7 +267,7 @@ EXTERNAL_CHECKS = {
     MetricSettings: {"settle_level": positive, "final_fraction": fraction, "chatter_band": frequency_band,
                       "settle_z1": positive},
 }
-# Fields of Signal that a scenario does not set: the seed is derived from Scenario.seed.
+# Fields of Signal and SensorSpec that a scenario does not set: the seed is derived from Scenario.seed.
 SIGNAL_DERIVED = ("seed",)
 
 
