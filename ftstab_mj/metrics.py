@@ -1,7 +1,8 @@
 """Metrics of a run, computed from the logged arrays only (same code live and on replay).
 
 :func:`compute_metrics` maps a :class:`~ftstab_mj.records.RunInfo`, the samples of every loop
-({loop name: {field: array}}, fields of ``records.LOOP_FIELDS``) and the run status to a plain
+({loop name: {field: array}}, fields of ``records.LOOP_FIELDS``, and ``STAGE_FIELDS`` for a loop
+with a sensor, observer or actuator model) and the run status to a plain
 JSON-able dict::
 
     {"status": str, "n_samples": int, "duration": s, "loops": {name: {metric: value}}}
@@ -80,6 +81,49 @@ def bound_applies(loop) -> bool:
         p = loop.law_params
         return loop.true_phibar <= p["phibar"] and loop.true_gamma_m >= p["gamma_m"]
     return False
+
+
+def stage_reasons(stages: dict | None) -> list[str]:
+    """Why the paper's guarantee does not cover a loop with these stages (LoopInfo.stages): the
+    theorems assume the exact state and an actuator that delivers any u at once. [] when it does:
+    no stage, or only a saturation above what the law needs (``u_needed``, a sampled estimate)."""
+    if not stages:
+        return []
+    out = []
+    sensor, obs, act = stages["sensor"], stages["observer"], stages["actuator"]
+    if obs is not None:
+        out.append(f"the law uses the {obs['kind']} observer's estimate, not the state")
+    if sensor["measured"] == "state":
+        parts = [w for w, on in (("noise", any(sensor["noise"])), ("quantization", any(sensor["quantum"])),
+                                 (f"a delay of {sensor['delay']} periods", sensor["delay"])) if on]
+        if parts:
+            out.append("the law reads the state with " + ", ".join(parts))
+    for key, what in (("tau", "an actuator lag"), ("rate_max", "an actuator rate limit"),
+                      ("dead_zone", "an actuator dead zone")):
+        if act[key]:
+            out.append(f"{what} ({key} = {act[key]:g})")
+    u_max, need = act["u_max"], stages["u_needed"]
+    if u_max is not None:
+        if need is None:
+            out.append(f"saturation at u_max = {u_max:g}, and {stages['u_needed_note']}")
+        elif u_max < need:
+            out.append(f"the guarantee needs |u| up to {need:.4g} > u_max = {u_max:g} ({stages['u_needed_note']})")
+    return out
+
+
+def saturated_time(u, stages: dict, period: float) -> float:
+    """Time (s) during which the law asked for more than the actuator's u_max gives, |u| - dead_zone > u_max
+    (0 without saturation)."""
+    u_max = stages["actuator"]["u_max"]
+    if u_max is None:
+        return 0.0
+    return float(np.count_nonzero(np.abs(u) - stages["actuator"]["dead_zone"] > u_max) * period)
+
+
+def estimation_error(z_hat, z):
+    """Per component i: (max |z_hat_i - z_i|, RMS of it) over the samples given, lists of r (chain units)."""
+    e = np.abs(np.asarray(z_hat) - np.asarray(z))
+    return [_num(x) for x in e.max(axis=0)], [_num(x) for x in np.sqrt(np.mean(e * e, axis=0))]
 
 
 def time_bound(loop, V1_0):
@@ -235,7 +279,10 @@ def loop_metrics(info: RunInfo, loop, arrays: dict) -> dict:
     ts = settle_time(t, V1, ms.settle_level)
     tb = time_bound(loop, float(V1[0]))
     left = workspace_left(loop, a["z"], u)
-    applies = bound_applies(loop) and not left  # the true bounds only hold inside the workspace
+    stages = getattr(loop, "stages", None)
+    reasons = stage_reasons(stages)
+    # the true bounds only hold inside the workspace; the stages may break the theorems' assumptions
+    applies = bound_applies(loop) and not left and not reasons
     eps = float(loop.law_params["eps"]) if loop.law == "adaptive" else ms.settle_level
     entry, v_min, v_max = eps_ball(t, V1, eps)
     e_abs, e_sq, u_max = effort(u, h)
@@ -268,6 +315,19 @@ def loop_metrics(info: RunInfo, loop, arrays: dict) -> dict:
         "phi_hat_final": _num(a["phi_hat"][-1]),
         "theorem3": None if left else theorem3_check(loop, V1[win], a["phi_hat"][win]),
     })
+    if stages is not None:  # the loop's sensor, observer, actuator (records.STAGE_FIELDS)
+        e_max, e_rms = estimation_error(a["z_hat"][win], a["z"][win])
+        t_sat = saturated_time(u, stages, h)
+        out.update({
+            "bound_applies_reason": "; ".join(reasons) if reasons else None,
+            "u_needed": stages["u_needed"],
+            "estimation_error_max": e_max,
+            "estimation_error_rms": e_rms,
+            "time_saturated": _num(t_sat),
+            "saturated_fraction": _num(t_sat / (n * h)),
+            "chattering_applied": chattering(a["u_applied"][win], h),
+            "u_applied_max_abs": _num(np.max(np.abs(a["u_applied"]))),
+        })
     return out
 
 

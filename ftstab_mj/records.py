@@ -52,6 +52,11 @@ class LoopInfo:
     # Where the true bounds hold (Plant.loop_workspace), None when everywhere: z1_min, z1_max,
     # z2_abs_max (chain units), u_abs_max (control units). Metrics check the samples against it.
     workspace: dict | None = None
+    # The loop's sensor, observer and actuator (ftstab_mj/loop_stages), None for an ideal loop:
+    # {"sensor": {measured, noise, noise_kind, quantum, delay}, "observer": {kind, order, L,
+    # filter_order} | None, "actuator": {u_max, rate_max, tau, dead_zone} (None: no limit),
+    # "u_needed": the |u| the law's guarantee may ask for (None: no a priori bound), "u_needed_note"}.
+    stages: dict | None = None
 
 
 @dataclass(frozen=True)
@@ -87,7 +92,11 @@ class RunInfo:
     body_names: tuple[str, ...] = ()
 
     def to_dict(self) -> dict:
-        return asdict(self)
+        d = asdict(self)
+        for lp in d["loops"]:  # an ideal loop is described as before loop stages existed
+            if lp.get("stages") is None:
+                lp.pop("stages", None)
+        return d
 
     @classmethod
     def from_dict(cls, d: dict) -> "RunInfo":

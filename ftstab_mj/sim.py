@@ -48,7 +48,7 @@ import numpy as np
 from ftstab_mj import native as native_path
 from ftstab_mj.callback import control_callback, slot_owner, timer_off
 from ftstab_mj.errors import CallbackError, ParameterError
-from ftstab_mj.loop_stages.pipeline import build_stages
+from ftstab_mj.loop_stages.pipeline import build_stages, describe_stages
 from ftstab_mj.native import run as native_run
 from ftstab_mj.plants.base import Plant
 from ftstab_mj.records import (COMPLETED, DIVERGED, FAILED, INTERRUPTED, LOOP_FIELDS, LoopInfo,
@@ -192,7 +192,9 @@ class Simulation:
             infos.append(LoopInfo(name=L.name, r=law.r, law=law.name, hong=law.base_info(),
                                   law_params=law.param_values(), true_phibar=float(phibar[i]),
                                   true_gamma_m=float(gm[i]), true_gamma_M=float(gM[i]),
-                                  workspace=self.plant.loop_workspace(i, float(L.ref))))
+                                  workspace=self.plant.loop_workspace(i, float(L.ref)),
+                                  stages=None if self.stages[i] is None else describe_stages(
+                                      self.stages[i], law, L.z0 if len(L.z0) else np.zeros(law.r))))
         return RunInfo(scenario=dict(scenario or {}), loops=tuple(infos), period=self.period,
                        physics_step=self.physics_step, metric_settings=metric_settings or MetricSettings(),
                        model_xml=self.model_xml, body_names=tuple(self.plant.body_names))

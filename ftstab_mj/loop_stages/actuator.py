@@ -86,3 +86,38 @@ class ActuatorModel:
         decay = math.exp(-h / self.tau)
         ua = u_c + (float(state[1]) - u_c) * decay ** np.arange(N + 1)
         return ua[:N], np.array([u_c, ua[N]])
+
+
+def control_needed(law, z0, samples: int = 20000, seed: int = 0) -> tuple[float | None, str]:
+    """(u_needed, how it was found): the largest |u| the law's guarantee may ask for from z0, or
+    None with the reason when it has no a priori bound.
+
+    For the nominal and robust laws on Hong's full form, u = gamma_hat u0 + phi_hat sign(u0) with
+    constant gamma_hat, phi_hat, and the guarantee keeps V1 <= V1(z0) along the solution (V1 is
+    decreasing). u0 and V1 are homogeneous of degrees 1 + r k and 2 + k (same dilation), so
+    sup_{V1 <= c} |u0| = c^((1 + r k) / (2 + k)) sup_{V1 = 1} |u0| (1 + r k > 0). The sup on
+    {V1 = 1} is sampled (dilated random directions, then a local search: control/certificate.py),
+    so u_needed is an estimate from below: u_max below it certainly starves the guarantee, u_max
+    above it is only estimated to suffice.
+    """
+    from ftstab_mj.control.certificate import _refine_max, unit_level_set_points
+
+    hong = getattr(law, "hong", None)
+    if getattr(law, "name", "") not in ("nominal", "robust") or hong is None or hong.form != "full":
+        return None, f"the {getattr(law, 'name', type(law).__name__)!r} law's guarantee has no a priori bound on |u|"
+    z0 = np.asarray(z0, dtype=float)
+    out = law.evaluate(z0, law.initial_state())
+    V1_0 = float(out.V1)
+    rng = np.random.default_rng(seed)
+    z = unit_level_set_points(hong, samples, rng)
+
+    def abs_u0(x):
+        return np.abs(hong.evaluate(x)[0])
+
+    vals = abs_u0(z)
+    top = z[np.argsort(vals)[-64:]]
+    sup1 = max(float(np.max(vals)), _refine_max(hong, abs_u0, top, rng))
+    sup_u0 = max(V1_0 ** (hong.degree_u0 / hong.degree_V1) * sup1, float(abs(out.u0)))
+    need = float(out.gamma_hat) * sup_u0 + float(out.phi_hat)
+    return need, (f"sup |u| over V1 <= V1(z0) = {V1_0:.4g}: gamma_hat sup|u0| + phi_hat, sup|u0| sampled on "
+                  f"{samples} points of V1 = 1 (an estimate from below)")

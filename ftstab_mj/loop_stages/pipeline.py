@@ -126,3 +126,26 @@ def build_stages(sensor, observer, actuator, r: int, period: float, N: int, stre
                             tau=actuator.tau, dead_zone=actuator.dead_zone)
     stages = LoopStages(sens, obs, act, r=r, period=period, N=N, stream=stream)
     return None if stages.ideal else stages
+
+
+def describe_stages(stages: LoopStages, law, z0) -> dict:
+    """The stages of a loop as plain JSON-able data (records.LoopInfo.stages), with what the law's
+    guarantee needs of the actuator (actuator.control_needed)."""
+    from ftstab_mj.loop_stages.actuator import control_needed
+
+    s, o, a = stages.sensor, stages.observer, stages.actuator
+
+    def finite(x):
+        return None if x == float("inf") else x
+
+    need, note = control_needed(law, z0)
+    return {
+        "sensor": {"measured": s.measured, "noise": list(s.noise), "noise_kind": s.noise_kind,
+                   "quantum": list(s.quantum), "delay": s.delay},
+        "observer": None if o is None else {
+            "kind": "levant_filtering" if o.filter_order else "levant", "order": o.order, "L": o.L,
+            "filter_order": o.filter_order},
+        "actuator": {"u_max": finite(a.u_max), "rate_max": finite(a.rate_max), "tau": a.tau,
+                     "dead_zone": a.dead_zone},
+        "u_needed": need, "u_needed_note": note,
+    }
