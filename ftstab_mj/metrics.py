@@ -101,7 +101,7 @@ def stage_reasons(stages: dict | None) -> list[str]:
     for key, what in (("tau", "an actuator lag"), ("rate_max", "an actuator rate limit"),
                       ("dead_zone", "an actuator dead zone")):
         if act[key]:
-            out.append(f"{what} ({key} = {act[key]:g})")
+            out.append(f"{what} ({key} = {act[key]:g}" + (f", order {act['lag_order']})" if key == "tau" else ")"))
     u_max, need = act["u_max"], stages["u_needed"]
     if u_max is not None:
         if need is None:

@@ -162,19 +162,39 @@ def test_saturation_dead_zone_and_rate_limit():
     assert np.allclose(got, [0.1, 0.2, 0.3, 0.4, 0.5])
 
 
-def test_lag_is_the_exact_first_order_response_to_a_held_command():
-    a = ActuatorModel(tau=0.05)
+def test_lag_is_the_exact_first_order_response_to_a_held_command_averaged_over_each_step():
+    tau, h = 0.05, 0.001
+    a = ActuatorModel(tau=tau)
     st = a.initial_state()
     values = []
     for _ in range(20):  # a unit step held for 20 periods of 10 steps of 1 ms
-        steps, st = a.steps(1.0, st, 0.001, 10)
+        steps, st = a.steps(1.0, st, h, 10)
         values.append(steps)
-    t = np.arange(200) * 0.001
-    assert np.allclose(np.concatenate(values), 1.0 - np.exp(-t / 0.05), rtol=0, atol=1e-14)
+    t = np.arange(201) * h
+    # mean over [t_j, t_j + h] of 1 - exp(-t / tau), from the integral of the exact response
+    integral = t + tau * np.exp(-t / tau)
+    assert np.allclose(np.concatenate(values), np.diff(integral) / h, rtol=0, atol=1e-12)
+    assert st[1] == pytest.approx(1.0 - math.exp(-0.2 / tau), abs=1e-14)
+    # a lag much shorter than the step is (to rounding) no lag at all
+    assert np.allclose(ActuatorModel(tau=1e-9).steps(0.7, np.zeros(2), h, 3)[0], 0.7, rtol=0, atol=1e-6)
+
+
+def test_second_order_lag_is_two_exact_lags_in_cascade_averaged_over_each_step():
+    # unit step into 1/(tau s + 1)^2: x(t) = 1 - (1 + t/tau) exp(-t/tau), integral t - 2 tau + (t + 2 tau) exp(-t/tau)
+    tau, h = 0.02, 0.001
+    a = ActuatorModel(tau=tau, lag_order=2)
+    st, values = a.initial_state(), []
+    for _ in range(30):
+        steps, st = a.steps(1.0, st, h, 10)
+        values.append(steps)
+    t = np.arange(301) * h
+    integral = t - 2 * tau + (t + 2 * tau) * np.exp(-t / tau)
+    assert np.allclose(np.concatenate(values), np.diff(integral) / h, rtol=0, atol=1e-12)
+    assert st[2] == pytest.approx(1.0 - (1.0 + 0.3 / tau) * math.exp(-0.3 / tau), abs=1e-13)
 
 
 def test_actuator_rejects_bad_parameters():
     for kw in [dict(u_max=0.0), dict(u_max=-1.0), dict(rate_max=math.nan), dict(tau=-0.1), dict(tau=math.inf),
-               dict(dead_zone=True)]:
+               dict(dead_zone=True), dict(tau=0.1, lag_order=3)]:
         with pytest.raises(ParameterError):
             ActuatorModel(**kw)

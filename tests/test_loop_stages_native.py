@@ -29,6 +29,7 @@ ACTUATORS = {
     "ideal": ActuatorModel(),
     "all": ActuatorModel(u_max=3.0, rate_max=200.0, tau=0.02, dead_zone=0.1),
     "lag": ActuatorModel(tau=0.005),
+    "second_order_lag": ActuatorModel(tau=0.003, lag_order=2, u_max=4.5),
 }
 
 

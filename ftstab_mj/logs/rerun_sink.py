@@ -7,10 +7,15 @@ Entities:
   ``/world/world/<geom>`` the static geoms of the world body (floor...).
 - ``/loop/<name>/z/z<i>``, ``/loop/<name>/u``, ``u0``, ``V1``, ``dV1_dzr``, ``phi_hat``,
   ``gamma_hat``, ``phi``, ``gamma``: scalar time series.
+- a loop with a sensor, observer or actuator model (records.STAGE_FIELDS) also has
+  ``/loop/<name>/z_hat/z<i>`` (what the law saw), ``/loop/<name>/z_measured/z<i>`` (the sensor's
+  reading) and ``/loop/<name>/u_applied`` (what the plant received).
 - ``/run/status``: a text document written at the end (status, message, metrics table).
 
 Default blueprint: the 3D view on the left; on the right one tab per loop with four plots stacked
-(state z, control u and u0, V1, and phi_hat / gamma_hat against the true phi / gamma).
+(state z, control u and u0, V1, and phi_hat / gamma_hat against the true phi / gamma). A loop
+with stages shows the estimate z_hat and the reading against the true z in the first plot and
+u_applied against u in the second.
 Samples are sent with ``send_columns`` per batch and the recording is flushed after every batch.
 """
 
@@ -33,9 +38,17 @@ def blueprint(info: RunInfo):
     tabs = []
     for lp in info.loops:
         base = f"/loop/{lp.name}"
+        if getattr(lp, "stages", None) is None:
+            z_view = rrb.TimeSeriesView(origin=f"{base}/z", name=f"{lp.name}: state z")
+            u_view = rrb.TimeSeriesView(origin=base, contents=[f"{base}/u", f"{base}/u0"], name=f"{lp.name}: control u, u0")
+        else:
+            z_view = rrb.TimeSeriesView(origin=base, contents=[f"{base}/{f}/**" for f in ("z", "z_hat", "z_measured")],
+                                        name=f"{lp.name}: true z vs estimate z_hat and reading z_measured")
+            u_view = rrb.TimeSeriesView(origin=base, contents=[f"{base}/u", f"{base}/u_applied", f"{base}/u0"],
+                                        name=f"{lp.name}: u asked vs u_applied, u0")
         tabs.append(rrb.Vertical(
-            rrb.TimeSeriesView(origin=f"{base}/z", name=f"{lp.name}: state z"),
-            rrb.TimeSeriesView(origin=base, contents=[f"{base}/u", f"{base}/u0"], name=f"{lp.name}: control u, u0"),
+            z_view,
+            u_view,
             rrb.TimeSeriesView(origin=base, contents=[f"{base}/V1"], name=f"{lp.name}: V1"),
             rrb.TimeSeriesView(origin=base, contents=[f"{base}/{f}" for f in ("phi_hat", "gamma_hat", "phi", "gamma")],
                                name=f"{lp.name}: phi_hat, gamma_hat vs true phi, gamma"),
@@ -106,10 +119,14 @@ class RerunSink:
         for name, arrays in batch.loops.items():
             t = np.asarray(arrays["t"], dtype=float)
             idx = [rr.TimeColumn(TIMELINE, duration=t)]
-            z = np.asarray(arrays["z"], dtype=float)
-            for i in range(z.shape[1]):
-                rec.send_columns(f"/loop/{name}/z/z{i + 1}", indexes=idx, columns=rr.Scalars.columns(scalars=z[:, i]))
-            for f in LOOP_FIELDS[2:]:
+            for f in ("z", "z_hat", "z_measured"):
+                if f not in arrays:
+                    continue
+                z = np.asarray(arrays[f], dtype=float)
+                for i in range(z.shape[1]):
+                    rec.send_columns(f"/loop/{name}/{f}/z{i + 1}", indexes=idx,
+                                     columns=rr.Scalars.columns(scalars=z[:, i]))
+            for f in LOOP_FIELDS[2:] + (("u_applied",) if "u_applied" in arrays else ()):
                 rec.send_columns(f"/loop/{name}/{f}", indexes=idx,
                                  columns=rr.Scalars.columns(scalars=np.asarray(arrays[f], dtype=float)))
         if t is not None and batch.body_pos.shape[1] > 0:

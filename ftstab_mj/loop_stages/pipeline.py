@@ -123,7 +123,8 @@ def build_stages(sensor, observer, actuator, r: int, period: float, N: int, stre
         inf = float("inf")
         act = ActuatorModel(u_max=inf if actuator.u_max is None else actuator.u_max,
                             rate_max=inf if actuator.rate_max is None else actuator.rate_max,
-                            tau=actuator.tau, dead_zone=actuator.dead_zone)
+                            tau=actuator.tau, dead_zone=actuator.dead_zone,
+                            lag_order=1 if actuator.lag_order is None else actuator.lag_order)
     stages = LoopStages(sens, obs, act, r=r, period=period, N=N, stream=stream)
     return None if stages.ideal else stages
 
@@ -146,6 +147,6 @@ def describe_stages(stages: LoopStages, law, z0) -> dict:
             "kind": "levant_filtering" if o.filter_order else "levant", "order": o.order, "L": o.L,
             "filter_order": o.filter_order},
         "actuator": {"u_max": finite(a.u_max), "rate_max": finite(a.rate_max), "tau": a.tau,
-                     "dead_zone": a.dead_zone},
+                     "lag_order": a.lag_order, "dead_zone": a.dead_zone},
         "u_needed": need, "u_needed_note": note,
     }

@@ -276,7 +276,9 @@ typedef struct {
     int32_t r, m, delay, observer, order, nf, N, pad;
     double noise_amp[FT_RMAX], quantum[FT_RMAX];
     double z_gain[FT_OBSMAX], z_pow[FT_OBSMAX], w_gain[FT_OBSMAX], w_pow[FT_OBSMAX];
-    double u_max, rate_max, tau, dead_zone, decay; /* decay = exp(-h / tau) */
+    double u_max, rate_max, tau, dead_zone;
+    double decay, mean, h, h_tau, c_a, c_b; /* exp(-h/tau), tau/h (1 - decay), h, h/tau, tau (1 - decay), c_a - h decay */
+    int32_t lag_order, pad2;
     double period;
     int32_t noisy, quantized;
     const double *noise;   /* (samples of the batch, m) unit noise, row = sample of the batch */
@@ -347,7 +349,7 @@ static void stage_measure(const ft_stage *S, int64_t k, int64_t row, const doubl
  * Returns u_applied (the input at the first step). */
 static double stage_actuate(const ft_stage *S, int64_t k, double u, double *state, double *steps) {
     double *act = state + S->delay * S->m + (S->observer ? S->order + 1 + S->nf : 0);
-    if (k == 0) act[0] = act[1] = 0.0;
+    if (k == 0) act[0] = act[1] = act[2] = 0.0;
     if (S->dead_zone != 0.0) u = copysign(fmax(fabs(u) - S->dead_zone, 0.0), u);
     if (S->u_max != INFINITY) u = fmin(fmax(u, -S->u_max), S->u_max);
     if (S->rate_max != INFINITY) {
@@ -356,13 +358,21 @@ static double stage_actuate(const ft_stage *S, int64_t k, double u, double *stat
     }
     if (S->tau == 0.0) {
         for (int s = 0; s < S->N; s++) steps[s] = u;
-        act[0] = act[1] = u;
-    } else {
-        const double a0 = act[1];
-        for (int s = 0; s < S->N; s++) steps[s] = u + (a0 - u) * pow(S->decay, (double)s);
-        act[0] = u;
-        act[1] = u + (a0 - u) * pow(S->decay, (double)S->N);
+        act[0] = act[1] = act[2] = u;
+        return steps[0];
     }
+    const double x1 = act[1], x2 = act[2];
+    double e1 = 0.0, e2 = 0.0;
+    for (int s = 0; s <= S->N; s++) {
+        const double pw = pow(S->decay, (double)s);
+        e1 = (x1 - u) * pw;
+        if (S->lag_order == 2) e2 = ((x2 - u) + (x1 - u) * ((double)s * S->h_tau)) * pw;
+        if (s == S->N) break;
+        steps[s] = S->lag_order == 2 ? u + (e2 * S->c_a + e1 * S->c_b) / S->h : u + e1 * S->mean;
+    }
+    act[0] = u;
+    act[1] = u + e1;
+    act[2] = S->lag_order == 2 ? u + e2 : u + e1;
     return steps[0];
 }
 

@@ -29,7 +29,8 @@ class FtStage(ctypes.Structure):
         ("N", _i32), ("pad", _i32),
         ("noise_amp", _d * native.RMAX), ("quantum", _d * native.RMAX),
         ("z_gain", _d * OBSMAX), ("z_pow", _d * OBSMAX), ("w_gain", _d * OBSMAX), ("w_pow", _d * OBSMAX),
-        ("u_max", _d), ("rate_max", _d), ("tau", _d), ("dead_zone", _d), ("decay", _d), ("period", _d),
+        ("u_max", _d), ("rate_max", _d), ("tau", _d), ("dead_zone", _d), ("decay", _d), ("mean", _d), ("h", _d), ("h_tau", _d), ("c_a", _d), ("c_b", _d),
+        ("lag_order", _i32), ("pad2", _i32), ("period", _d),
         ("noisy", _i32), ("quantized", _i32), ("noise", ctypes.c_void_p),
     ]
 
@@ -63,6 +64,11 @@ def pack_stages(st: LoopStages, physics_step: float) -> FtStage:
         p.w_gain[:o.filter_order], p.w_pow[:o.filter_order] = o._w_gain.tolist(), o._w_pow.tolist()
     p.u_max, p.rate_max, p.tau, p.dead_zone = a.u_max, a.rate_max, a.tau, a.dead_zone
     p.decay = math.exp(-physics_step / a.tau) if a.tau else 0.0
+    if a.tau:  # the constants of ActuatorModel.steps, computed as it computes them
+        h = physics_step
+        p.mean = a.tau / h * (1.0 - p.decay)
+        p.h, p.h_tau, p.c_a, p.c_b = h, h / a.tau, a.tau * (1.0 - p.decay), a.tau * (1.0 - p.decay) - h * p.decay
+    p.lag_order = a.lag_order
     return p
 
 

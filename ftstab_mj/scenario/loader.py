@@ -244,6 +244,9 @@ def _check_stages(lp: LoopSpec, r: int, rd: _Reader) -> None:
 
     p = f"loops.{lp.name}"
     sensor, obs = lp.sensor, lp.observer
+    if lp.actuator is not None and lp.actuator.lag_order is not None and lp.actuator.tau == 0:
+        raise rd.error(f"{p}.actuator.lag_order", "a lag order only with a lag (actuator.tau > 0)",
+                       f"lag_order = {lp.actuator.lag_order} with tau = 0")
     measured = sensor.measured if sensor is not None else "state"
     if sensor is not None:
         m = r if measured == "state" else 1

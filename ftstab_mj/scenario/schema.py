@@ -215,6 +215,8 @@ class ActuatorSpec:
         "rate limit |du/dt| <= rate_max (per s; default: none)", positive))
     tau: float = field(default=0.0, metadata=meta("first-order lag time constant (s; 0: none)", non_negative))
     dead_zone: float = field(default=0.0, metadata=meta("dead-zone half-width (0: none)", non_negative))
+    lag_order: int | None = field(default=None, metadata=meta(
+        "1: one lag 1/(tau s + 1) (default); 2: two in cascade, a second-order actuator", one_of(1, 2)))
 
 
 @dataclass(frozen=True)
