@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ftstab_mj.errors import LogError
-from ftstab_mj.records import COMPLETED, DIVERGED, LOOP_FIELDS
+from ftstab_mj.records import COMPLETED, DIVERGED, LOOP_FIELDS, STAGE_FIELDS
 
 
 @dataclass(frozen=True)
@@ -72,7 +72,10 @@ def verify_log(log) -> Verification:
             problems.append(f"status: logged {log.recorded['status']}, re-run {rerun.status}")
     t = log.loops[next(iter(log.loops))]["t"] if log.loops else np.empty(0)
     for name, arrays in log.loops.items():
-        for f in LOOP_FIELDS:
+        for f in LOOP_FIELDS + tuple(f for f in STAGE_FIELDS if f in arrays or f in rerun.loops[name]):
+            if f not in arrays or f not in rerun.loops[name]:
+                problems.append(f"/loop/{name} {f}: in {'the re-run' if f not in arrays else 'the log'} only")
+                continue
             a, b = arrays[f][:n], rerun.loops[name][f][:n]
             compared += a.size
             k = first_bit_difference(a, b)
