@@ -187,6 +187,10 @@ def pin_loop(m: dict, period: float, rate: float | None) -> dict:
     else:
         out["phi_hat_max"] = _tol(m["phi_hat_max"], atol=dt * rate, rtol=CLOSED_FORM_RTOL)
         out["phi_hat_final"] = _tol(m["phi_hat_final"], atol=dt * rate, rtol=CLOSED_FORM_RTOL)
+    if "u_needed" in m:  # a loop with sensor, observer or actuator stages (metrics.stage_reasons)
+        out["u_needed"] = _tol(m["u_needed"], rtol=CERTIFICATE_RTOL)  # a seeded sampled sup, like c
+        out["estimation_error_max"] = _tol(m["estimation_error_max"], rtol=CHATTER_RTOL, atol=1e-12)
+        out["time_saturated"] = _tol(m["time_saturated"], atol=dt)
     th = m.get("theorem3")
     if th:
         out["theorem3"] = {k: (_tol(th[k], rtol=CERTIFICATE_RTOL) if k in ("Phibar", "Delta", "phi_hat_limsup")
