@@ -115,9 +115,16 @@ def cmd_replay(args) -> int:
         print("\n".join(diff), file=sys.stderr)
         failed = True
     if args.verify:
+        from ftstab_mj.interrupts import interruption
         from ftstab_mj.logs.verify import verify_log
 
-        v = verify_log(log)
+        try:
+            v = verify_log(log)
+        except KeyboardInterrupt as exc:  # the re-run was stopped: nothing was compared, nothing differs
+            stop = interruption(exc)
+            print(f"{args.log}: verify {stop.label}: the re-run of the recorded scenario was stopped before "
+                  "it could be compared with the log", file=sys.stderr)
+            return stop.exit_code
         if v.ok:
             print(f"verify: re-ran the recorded scenario: all {v.compared} logged values are bit-identical",
                   file=sys.stderr if args.json else sys.stdout)
@@ -129,7 +136,8 @@ def cmd_replay(args) -> int:
 
 
 def cmd_check(args) -> int:
-    from ftstab_mj.expectations import PIN_HEADER, check_metrics, load_expectations, pin_expectations, to_toml
+    from ftstab_mj.expectations import (PIN_HEADER, ExpectationError, check_metrics, load_expectations,
+                                        pin_expectations, to_toml)
 
     if args.pin:
         log = _read_log(args.log)
@@ -146,7 +154,17 @@ def cmd_check(args) -> int:
         return 0
     expected = load_expectations(args.expect)
     log = _read_log(args.log)
-    outcomes = check_metrics(_replayed_metrics(log), expected, source=args.expect)
+    try:
+        outcomes = check_metrics(_replayed_metrics(log), expected, source=args.expect)
+    except ExpectationError as exc:
+        if log.n_samples or exc.found != "no such metric":
+            raise
+        # a log without samples has no per-sample metrics: say so rather than blame the expectations
+        run = f"run {log.recorded['status']}: {log.recorded.get('message') or 'no message'}" if log.recorded \
+            else "the run did not finish writing it"
+        print(f"{args.log}: the log has no samples ({run}), so {exc.path} of {args.expect} cannot be checked; "
+              f"{len(log.loops)} loop(s), 0 samples each")
+        return 1
     failed = [o for o in outcomes if not o.ok]
     if not failed:
         print(f"{args.log}: all {len(outcomes)} expectations of {args.expect} hold")
@@ -179,6 +197,8 @@ def cmd_list(args) -> int:
 
 def cmd_run(args) -> int:
     from pathlib import Path
+
+    from ftstab_mj import interrupts
 
     from ftstab_mj.scenario import find_scenario, load_scenario
     from ftstab_mj.scenario.run import ProgressSink, run_scenario
@@ -218,9 +238,10 @@ def cmd_run(args) -> int:
     status = run.result.status
     if status == "completed":
         return 0
-    print(f"error: run {status}: {run.result.message} (the logs say so and hold the samples up to there)",
-          file=sys.stderr)
-    return 130 if status == "interrupted" else 1
+    stop = (interrupts.last_signal() or interrupts.Interrupted()) if status == "interrupted" else None
+    print(f"error: run {stop.label if stop else status}: {run.result.message} (the logs say so and hold the "
+          "samples up to there)", file=sys.stderr)
+    return stop.exit_code if stop else 1
 
 
 def _workers(text: str) -> int:
@@ -308,7 +329,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     ck = sub.add_parser("check", help="compare a log's metrics with pinned values and tolerances",
                         description="Exit 0 when every expectation of EXPECT.toml holds for the metrics "
-                                    "recomputed from LOG.mcap, 1 with the failing ones listed otherwise. Format: "
+                                    "recomputed from LOG.mcap, 1 with the failing ones listed otherwise (or when the "
+                                    "log has no samples to check them on). Format: "
                                     "see ftstab_mj/expectations.py.")
     ck.add_argument("log", metavar="LOG.mcap")
     what = ck.add_mutually_exclusive_group(required=True)
@@ -368,15 +390,19 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv=None) -> int:
-    try:
-        args = build_parser().parse_args(argv)
-        return args.func(args)
-    except FtstabError as exc:  # every bad input of ours: one line, exit 2
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:  # outside a run (a run catches its own and finalizes its logs)
-        print("error: interrupted", file=sys.stderr)
-        return 130
+    from ftstab_mj import interrupts
+
+    with interrupts.handling(take_over=True):  # SIGTERM and SIGHUP stop a command like Ctrl-C (exit 128 + signal)
+        try:
+            args = build_parser().parse_args(argv)
+            return args.func(args)
+        except FtstabError as exc:  # every bad input of ours: one line, exit 2
+            print(f"error: {exc}", file=sys.stderr)
+            return 2
+        except KeyboardInterrupt as exc:  # outside a run (a run catches its own and finalizes its logs)
+            stop = interrupts.interruption(exc)
+            print(f"error: {stop.label}", file=sys.stderr)
+            return stop.exit_code
 
 
 if __name__ == "__main__":

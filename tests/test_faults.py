@@ -4,7 +4,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from conftest import ROOT
+from conftest import ROOT, run_cli
 from ftstab_mj.logs import McapSink, RerunSink
 from ftstab_mj.logs.reader import read_log
 from ftstab_mj.logs.rerun_sink import write_rrd
@@ -80,3 +80,24 @@ def test_every_model_compile_in_the_package_is_inside_a_cleared_callback_block()
 
         visit(tree, False)
     assert bare == []
+
+
+def test_check_on_a_log_without_samples_says_so_and_exits_1(tmp_path):
+    """A run interrupted before its first sample leaves a valid log of 0 samples: `check` says the
+    log has no samples (exit 1: the expectations cannot hold), not that the expectation file is bad."""
+    info, loops, pos, quat = synthetic_run("robust", params={"phibar": 0.5, "gamma_m": 0.8}, duration=0.2)
+    empty = {k: {f: a[:0] for f, a in v.items()} for k, v in loops.items()}
+    path = tmp_path / "empty.mcap"
+    write_run(McapSink(path), info, empty, pos[:0], quat[:0], "interrupted",
+              compute_metrics(info, empty, "interrupted"), batch=100)
+    res = run_cli("check", path, "--expect", ROOT / "tests" / "expected" / "cart_r2_robust.toml")
+    assert res.returncode == 1 and res.stderr == ""
+    assert res.stdout == (f"{path}: the log has no samples (run interrupted: no message), so loops.cart.z0 of "
+                          f"{ROOT / 'tests' / 'expected' / 'cart_r2_robust.toml'} cannot be checked; "
+                          "1 loop(s), 0 samples each\n")
+    # a file pinning only what a run without samples has still passes (tests/test_check.py)
+    (tmp_path / "count.toml").write_text('status = "interrupted"\nn_samples = 0\n')
+    assert run_cli("check", path, "--expect", tmp_path / "count.toml").returncode == 0
+    # and a malformed expectation file is still bad input
+    (tmp_path / "bad.toml").write_text("n_samples = {valu = 0}\n")
+    assert run_cli("check", path, "--expect", tmp_path / "bad.toml").returncode == 2

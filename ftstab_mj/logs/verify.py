@@ -16,7 +16,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ftstab_mj.errors import LogError
-from ftstab_mj.records import COMPLETED, DIVERGED, LOOP_FIELDS, STAGE_FIELDS
+from ftstab_mj.interrupts import Interrupted, last_signal
+from ftstab_mj.records import COMPLETED, DIVERGED, INTERRUPTED, LOOP_FIELDS, STAGE_FIELDS
 
 
 @dataclass(frozen=True)
@@ -60,6 +61,8 @@ def verify_log(log) -> Verification:
         # an unfinished log is a prefix: re-run only as far (samples never depend on the duration)
         scenario["sim"]["duration"] = log.n_samples * log.info.period
     rerun = run_scenario_dict(scenario, sinks=(), source=f"{log.path} /scenario").result
+    if rerun.status == INTERRUPTED:  # stopped by a signal: nothing to compare (not a difference)
+        raise last_signal() or Interrupted()
     n = log.n_samples
     problems, compared = [], 0
     if n > rerun.n_samples:
