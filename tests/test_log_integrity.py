@@ -218,3 +218,17 @@ def test_a_run_info_with_absurd_sizes_is_one_line(tmp_path):
             w.finish()
         with pytest.raises(LogError, match=expect):
             read_log(path)
+
+
+@pytest.mark.parametrize("model", ["cart", "cart_integrating", "arm"])
+def test_the_models_our_runs_log_pass_the_untrusted_model_check(model):
+    # The check must refuse what names files, not what our own plants write (e.g. <light dir=...>).
+    from ftstab_mj.callback import control_callback
+    from ftstab_mj.logs.scene import check_untrusted_model, model_shapes
+    from ftstab_mj.plants import make_plant
+
+    plant = make_plant(model)
+    with control_callback(None):
+        _, _, xml = plant.compile(1e-3, "euler", nuserdata=4)
+    check_untrusted_model(xml, model)  # raises LogError if refused
+    assert model_shapes(xml, plant.body_names)

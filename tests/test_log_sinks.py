@@ -121,35 +121,117 @@ def test_mcap_keeps_nonfinite_values(tmp_path, run):
     assert final["status"] == DIVERGED and final["message"] == "NaN in u"
 
 
-def _rrd_entities(path):
+def _rrd(path):
+    """({entity: rows}, {entity: {column: list}}) of a recording's data (time columns as float s)."""
     from rerun.chunk import RrdReader
 
-    rows, values = Counter(), {}
+    rows, cols = Counter(), {}
     for chunk in RrdReader(str(path)).stream():
         rows[chunk.entity_path] += chunk.num_rows
-        if chunk.entity_path == "/loop/cart/u":
-            col = chunk.to_record_batch().column("Scalars:scalars").to_pylist()
-            values.setdefault("u", []).extend(v[0] for v in col)
-    return rows, values
+        rb = chunk.to_record_batch()
+        for name in rb.schema.names:
+            if name.startswith("rerun.controls"):
+                continue
+            col = rb.column(name)
+            values = (col.cast("int64").to_numpy() * 1e-9).tolist() if name == "sim_time" else col.to_pylist()
+            cols.setdefault(chunk.entity_path, {}).setdefault(name, []).extend(values)
+    return rows, cols
 
 
-def test_rerun_recording_holds_signals_bodies_and_blueprint(tmp_path, run):
+def _blueprint(path):
+    """{view name: (class, origin)} and the 3D view's eye controls, read from the recording's blueprint."""
     from rerun.chunk import RrdReader
 
-    info, loops, pos, quat, metrics = run
-    path = tmp_path / "run.rrd"
+    reader = RrdReader(str(path))
+    (store,) = reader.blueprints()
+    views, eye = {}, {}
+    for chunk in reader.stream(store=store):
+        rb = chunk.to_record_batch()
+        names = rb.schema.names
+        if "ViewBlueprint:display_name" in names:
+            views[rb.column("ViewBlueprint:display_name").to_pylist()[0][0]] = (
+                rb.column("ViewBlueprint:class_identifier").to_pylist()[0][0],
+                rb.column("ViewBlueprint:space_origin").to_pylist()[0][0])
+        if "EyeControls3D:position" in names:
+            eye = {k: rb.column(f"EyeControls3D:{k}").to_pylist()[0][0] for k in ("position", "look_target")}
+    return views, eye
+
+
+@pytest.fixture(scope="module")
+def robust_rrd(tmp_path_factory):
+    """A robust run whose true bounds are within the assumed ones (Theorem 1's bound applies)."""
+    info, loops, pos, quat = synthetic_run("robust", params={"phibar": 0.2, "gamma_m": 0.8}, duration=6.0)
+    metrics = compute_metrics(info, loops, COMPLETED)
+    path = tmp_path_factory.mktemp("rrd") / "robust.rrd"
     write_run(RerunSink(path), info, loops, pos, quat, COMPLETED, metrics, batch=600)
-    rows, values = _rrd_entities(path)
-    n = len(loops["cart"]["t"])
-    for f in LOOP_FIELDS[2:]:
-        assert rows[f"/loop/cart/{f}"] == n, f
-    assert rows["/loop/cart/z/z1"] == rows["/loop/cart/z/z2"] == n
-    assert np.array_equal(values["u"], loops["cart"]["u"])
+    return path, info, loops, pos, metrics
+
+
+def test_rerun_blueprint_shows_plots_documents_and_frames_the_plant(robust_rrd):
+    path, info, loops, pos, metrics = robust_rrd
+    views, eye = _blueprint(path)
+    assert views["plant"] == ("3D", "/world")
+    assert views["status and metrics"] == ("TextDocument", "/run/status")
+    assert views["scenario"] == ("TextDocument", "/run/scenario")
+    origins = {origin for cls, origin in views.values() if cls == "TimeSeries"}
+    assert origins == {f"/loop/cart/{p}" for p in ("z", "control", "V1", "adaptation", "other")}
+    # the camera looks at the middle of where the cart went (x from 1 to ~0) and sees all of it
+    target, position = np.array(eye["look_target"]), np.array(eye["position"])
+    xs = pos[:600, 0, 0]
+    assert xs.min() - 0.2 <= target[0] <= xs.max() + 0.2
+    span = xs.max() - xs.min() + 0.4  # the cart's travel plus its chassis
+    assert np.linalg.norm(position - target) >= span  # far enough to frame it (>= 53 deg field of view)
+
+
+def test_rerun_series_are_grouped_by_plot_with_min_max_for_the_control(robust_rrd):
+    from rerun.components import AggregationPolicy
+
+    path, info, loops, pos, metrics = robust_rrd
+    rows, cols = _rrd(path)
+    a, n = loops["cart"], len(loops["cart"]["t"])
+    control = cols["/loop/cart/control"]
+    assert control["SeriesLines:names"][0] == ["u", "u0"]
+    assert control["SeriesLines:aggregation_policy"][0] == [AggregationPolicy.MinMax.value]
+    assert np.array_equal(np.array(control["Scalars:scalars"]), np.column_stack([a["u"], a["u0"]]))
+    assert np.array_equal(np.array(cols["/loop/cart/z"]["Scalars:scalars"]), a["z"])
+    assert np.array_equal(np.array(cols["/loop/cart/adaptation"]["Scalars:scalars"]),
+                          np.column_stack([a[f] for f in ("phi_hat", "gamma_hat", "phi", "gamma")]))
+    assert cols["/loop/cart/other"]["SeriesLines:names"][0] == ["dV1_dzr"]
+    for entity in ("/loop/cart/z", "/loop/cart/control", "/loop/cart/adaptation"):
+        colours = cols[entity]["SeriesLines:colors"][0]
+        assert len(set(colours)) == len(colours), entity  # no two series of a plot share a colour
     assert rows["/world/cart"] == n  # body pose per sample
     for geom in ("/world/cart/chassis", "/world/cart/mast", "/world/cart/knob", "/world/world/floor"):
         assert rows[geom] == 1, geom
-    assert rows["/run/status"] == 1 and rows["/run/scenario"] == 1
-    assert len(RrdReader(str(path)).blueprints()) == 1
+    assert "V1_final" in cols["/run/status"]["TextDocument:text"][-1][0]
+
+
+def test_rerun_V1_plot_is_log10_with_theorem_1_envelope_above_the_samples(robust_rrd):
+    from ftstab_mj.metrics import loop_certificate
+
+    path, info, loops, pos, metrics = robust_rrd
+    rows, cols = _rrd(path)
+    a = loops["cart"]
+    logged = np.array(cols["/loop/cart/V1/log10_V1"]["Scalars:scalars"])[:, 0]
+    assert np.array_equal(logged, np.log10(a["V1"]))
+    settle = np.array(cols["/loop/cart/V1/settle_level"]["Scalars:scalars"])[:, 0]
+    assert np.all(settle == np.log10(info.metric_settings.settle_level))
+    cert = loop_certificate(info.loops[0])
+    alpha, c = cert.alpha, cert.c
+    t_env = np.array(cols["/loop/cart/V1/envelope"]["sim_time"])
+    env = 10.0 ** np.array(cols["/loop/cart/V1/envelope"]["Scalars:scalars"])[:, 0]
+    # the comparison lemma's identity: V^(1-alpha) + c (1-alpha) t = V1(0)^(1-alpha) on the envelope
+    V0 = a["V1"][0]
+    inside = t_env < 0.999 * t_env[-1]
+    assert np.allclose(env[inside] ** (1 - alpha) + c * (1 - alpha) * t_env[inside], V0 ** (1 - alpha), rtol=1e-9)
+    T = metrics["loops"]["cart"]["time_bound"]
+    assert cols["/loop/cart/V1/T_z0"]["sim_time"] == [pytest.approx(T, abs=1e-9)] and t_env[-1] == pytest.approx(T, abs=1e-9)  # ns
+    # Theorem 1 holds on the run until it settles: every logged V1 is under the envelope
+    assert metrics["loops"]["cart"]["bound_applies"]
+    settled = metrics["loops"]["cart"]["settle_time"]
+    before = a["t"] < settled
+    bound = np.interp(a["t"][before], t_env, env)
+    assert np.all(a["V1"][before] <= bound * (1 + 1e-12)) and before.sum() > 1000
 
 
 def test_unwritable_log_path_is_one_line_log_error(tmp_path, run):
@@ -168,8 +250,8 @@ def test_sinks_accept_a_run_without_3d_model(tmp_path):
     with open(tmp_path / "a.mcap", "rb") as f:
         topics = {c.topic for c in make_reader(f).get_summary().channels.values()}
     assert topics == {"/scenario", "/run_info", "/metrics", "/loop/cart"}
-    rows, _ = _rrd_entities(tmp_path / "a.rrd")
-    assert rows["/loop/cart/V1"] == 200 and not any(k.startswith("/world") for k in rows)
+    rows, _ = _rrd(tmp_path / "a.rrd")
+    assert rows["/loop/cart/V1/log10_V1"] == 200 + 1 and not any(k.startswith("/world") for k in rows)
 
 
 def test_batches_helper_covers_every_sample(run):
@@ -214,3 +296,23 @@ def test_mcap_indexes_point_at_the_messages(tmp_path, run):
     got = [d.t for _, _, d in _decoded(path, topics=["/loop/cart"], starting_at=500_000_000,
                                        ending_before=700_000_000)["/loop/cart"]]  # through the chunk indexes
     assert got == [t for t in loops["cart"]["t"].tolist() if 0.5 <= t < 0.7]
+
+
+def test_rerun_plots_stage_fields_beside_the_true_ones(tmp_path):
+    # A loop with a sensor/observer/actuator carries z_hat, z_measured and u_applied: the state plot
+    # shows them against z, the control plot u_applied against u.
+    info, loops, pos, quat = synthetic_run("nominal", duration=0.2)
+    a = dict(loops["cart"])
+    a["z_measured"] = a["z"] + 1e-3
+    a["z_hat"] = a["z"] - 1e-3
+    a["u_applied"] = np.clip(a["u"], -0.5, 0.5)
+    path = tmp_path / "staged.rrd"
+    write_run(RerunSink(path), info, {"cart": a}, pos, quat, COMPLETED, compute_metrics(info, loops, COMPLETED))
+    _, cols = _rrd(path)
+    z = cols["/loop/cart/z"]
+    assert z["SeriesLines:names"][0] == ["z1", "z2", "z_hat1", "z_hat2", "z_measured1", "z_measured2"]
+    assert np.array_equal(np.array(z["Scalars:scalars"]), np.hstack([a["z"], a["z_hat"], a["z_measured"]]))
+    control = cols["/loop/cart/control"]
+    assert control["SeriesLines:names"][0] == ["u", "u0", "u_applied"]
+    assert np.array_equal(np.array(control["Scalars:scalars"]), np.column_stack([a["u"], a["u0"], a["u_applied"]]))
+    assert len(set(z["SeriesLines:colors"][0])) == 6

@@ -126,7 +126,7 @@ def test_replay_writes_a_rerun_recording_from_the_log(log_with_flush_sizes, tmp_
     for chunk in RrdReader(str(out)).stream():
         rows[chunk.entity_path] = rows.get(chunk.entity_path, 0) + chunk.num_rows
     n = len(run[1]["cart"]["t"])
-    assert rows["/loop/cart/V1"] == n and rows["/loop/cart/z/z2"] == n
+    assert rows["/loop/cart/V1/log10_V1"] == n + 1 and rows["/loop/cart/z"] == n + 1  # + the series style
     assert rows["/world/cart"] == len(read_log(path).pose_t) > 0
 
 
@@ -170,7 +170,7 @@ def test_sigkill_mid_run_leaves_logs_readable_up_to_the_last_flush(tmp_path, run
     info, loops = synthetic_run("adaptive", duration=log.n_samples * 1e-3, period=1e-3)[:2]
     for f in LOOP_FIELDS:
         assert np.array_equal(log.loops["cart"][f], loops["cart"][f][: log.n_samples]), f
-    assert rrd_rows(rrd, "/loop/cart/u") >= reported  # readable as far as it goes (see rrd_rows)
+    assert rrd_rows(rrd, "/loop/cart/control") >= reported  # readable as far as it goes (see rrd_rows)
     res = run_cli("replay", mcap, "--json")
     assert res.returncode == 0 and json.loads(res.stdout)["status"] == INTERRUPTED
 
@@ -199,8 +199,9 @@ def test_sigkilled_ftstab_run_replays_and_verifies_up_to_where_it_got(tmp_path):
         child.wait()
     log = read_log(mcap)
     assert not log.complete and log.n_samples >= 2000 and log.n_samples % 1000 == 0
+    assert log.info.model_xml is not None and not log.notes  # a real run's model passes the untrusted-model check
     res = run_cli("replay", mcap, "--verify")
     assert res.returncode == 0, res.stderr
     assert "truncated log" in res.stderr and "bit-identical" in res.stdout
     # The .rrd is flushed batch by batch too; SIGKILL may cut its last frame (see rrd_rows).
-    assert rrd_rows(rrd, "/loop/cart/V1") >= log.n_samples - 1000
+    assert rrd_rows(rrd, "/loop/cart/V1/log10_V1") >= log.n_samples - 1000

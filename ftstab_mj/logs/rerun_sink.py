@@ -1,63 +1,118 @@
-"""Rerun recording (.rrd) of a run: the plant in 3D and the loop signals, on a ``sim_time`` timeline.
+"""Rerun recording (.rrd, or a live viewer) of a run: the plant in 3D and one entity per plot, on a ``sim_time`` timeline.
 
-Entities:
+Entities (one multi-series entity per plot: one ``send_columns`` per plot and batch):
 
 - ``/world/<body>``: the body's pose over time (Transform3D, world frame); its geoms as static
-  children ``/world/<body>/<geom>`` (boxes, ellipsoids for spheres, capsules, cylinders);
-  ``/world/world/<geom>`` the static geoms of the world body (floor...).
-- ``/loop/<name>/z/z<i>``, ``/loop/<name>/u``, ``u0``, ``V1``, ``dV1_dzr``, ``phi_hat``,
-  ``gamma_hat``, ``phi``, ``gamma``: scalar time series.
-- a loop with a sensor, observer or actuator model (records.STAGE_FIELDS) also has
-  ``/loop/<name>/z_hat/z<i>`` (what the law saw), ``/loop/<name>/z_measured/z<i>`` (the sensor's
-  reading) and ``/loop/<name>/u_applied`` (what the plant received).
-- ``/run/status``: a text document written at the end (status, message, metrics table).
+  children ``/world/<body>/<geom>``; ``/world/world/<geom>`` the static geoms (floor...).
+- ``/loop/<name>/z``: z_1..z_r (chain units); a loop with a sensor, observer or actuator model
+  (records.STAGE_FIELDS) adds the estimate z_hat (what the law saw) and the reading z_measured.
+- ``/loop/<name>/control``: u (the law's output) and u0 (Hong's nominal control), and u_applied
+  (what the plant received) for a loop with an actuator model, drawn with **min/max
+  aggregation**: when a pixel holds many samples the plot shows their range, so a chattering u
+  (between -2.1 and +2.1 at almost every sample) shows as a band, not as its average.
+- ``/loop/<name>/V1/log10_V1``: log10 V1 (Rerun plots have no log axis; V1 = 0 is a gap), with
+  ``/loop/<name>/V1/settle_level`` (log10 of the metrics' settle level) and, where Theorem 1 gives
+  a bound (certificate c > 0, nominal or robust law), ``/loop/<name>/V1/envelope``: the comparison
+  lemma's V1(t) <= (V1(0)^(1-alpha) - c (1-alpha) t)^(1/(1-alpha)) until T(z0) =
+  V1(0)^(1-alpha) / (c (1-alpha)), marked by the point ``/loop/<name>/V1/T_z0``. The envelope is a
+  guarantee only when the metrics say ``bound_applies`` (true bounds within the assumed ones).
+- ``/loop/<name>/adaptation``: phi_hat, gamma_hat against the true phi, gamma (chain units).
+- ``/loop/<name>/other``: any other per-sample field the loop carries (one series per value;
+  dV1/dz_r, and what observers or actuators add), in its own plot.
+- ``/run/scenario``, ``/run/status``: text documents (the resolved scenario; status, message and
+  metrics table, written at the end).
 
-Default blueprint: the 3D view on the left; on the right one tab per loop with four plots stacked
-(state z, control u and u0, V1, and phi_hat / gamma_hat against the true phi / gamma). A loop
-with stages shows the estimate z_hat and the reading against the true z in the first plot and
-u_applied against u in the second.
-Samples are sent with ``send_columns`` per batch and the recording is flushed after every batch.
+Default blueprint: on the left the 3D view, its camera framing the plant over the first batch,
+above tabs with the two documents; on the right one tab per loop with the plots stacked. The
+recording goes to its sink (a file, a spawned viewer, a web viewer) at the first batch, with the
+camera known; everything logged before is buffered by Rerun and sent then.
 """
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from ftstab_mj.errors import LogError
-from ftstab_mj.logs.scene import model_shapes, quat_rotate
-from ftstab_mj.records import LOOP_FIELDS, RunInfo, SampleBatch
+from ftstab_mj.logs.scene import PLANE_HALF_THICKNESS, model_shapes, quat_rotate
+from ftstab_mj.records import RunInfo, SampleBatch
 
 TIMELINE = "sim_time"
 APPLICATION_ID = "ftstab"
+ENVELOPE_POINTS = 400
+
+# Per plot, the series and their colours (RGB), chosen so that no two series of one plot collide.
+PALETTE = [(31, 119, 180), (255, 127, 14), (44, 160, 44), (214, 39, 40), (148, 103, 189), (140, 86, 75),
+           (227, 119, 194), (127, 127, 127), (188, 189, 34), (23, 190, 207), (0, 0, 128), (128, 0, 0)]
+# plot -> its fields in order (those a batch carries are plotted), and fixed colours where they matter
+PLOTS = {
+    "z": ("z", "z_hat", "z_measured"),
+    "control": ("u", "u0", "u_applied"),
+    "adaptation": ("phi_hat", "gamma_hat", "phi", "gamma"),
+}
+FIXED_COLOURS = {"u": (214, 39, 40), "u0": (30, 30, 30), "u_applied": (44, 160, 44), "phi_hat": (148, 103, 189),
+                 "gamma_hat": (23, 190, 207), "phi": (188, 189, 34), "gamma": (140, 86, 75)}
+V1_COLOURS = {"log10_V1": (31, 119, 180), "settle_level": (127, 127, 127), "envelope": (148, 103, 189),
+              "T_z0": (214, 39, 40)}
+PLOTTED = {"t", "V1", *(f for fields in PLOTS.values() for f in fields)}
 
 
-def blueprint(info: RunInfo):
-    """The default layout described in the module docstring."""
+def _eye(info: RunInfo, body_pos: np.ndarray):
+    """(position, look target) of a camera that frames the plant: the bodies' positions over
+    body_pos (n, nbody, 3) grown by each body's reach (its geoms), the static geoms but planes, and the origin."""
+    reach = {}
+    points = [np.zeros(3)]
+    for s in model_shapes(info.model_xml, info.body_names):
+        r = float(np.linalg.norm(s.pos)) + max(s.half_sizes)
+        if s.body == "world":
+            if s.kind != "box" or s.half_sizes[2] != PLANE_HALF_THICKNESS:  # an infinite plane frames nothing
+                points += [np.asarray(s.pos) - r, np.asarray(s.pos) + r]
+        else:
+            reach[s.body] = max(reach.get(s.body, 0.0), r)
+    for b, name in enumerate(info.body_names):
+        p = body_pos[:, b][np.isfinite(body_pos[:, b]).all(axis=1)]
+        if len(p):
+            points += [p.min(axis=0) - reach.get(name, 0.0), p.max(axis=0) + reach.get(name, 0.0)]
+    pts = np.array(points)
+    lo, hi = pts.min(axis=0), pts.max(axis=0)
+    centre = (lo + hi) / 2.0
+    radius = max(float(np.linalg.norm(hi - lo)) / 2.0, 0.2)
+    direction = np.array([0.35, -1.0, 0.45])  # from the front (-y), a little above and to the side
+    return centre + 2.2 * radius * direction / np.linalg.norm(direction), centre
+
+
+def blueprint(info: RunInfo, eye=None, others=()):
+    """The default layout described in the module docstring; eye: (position, target) of the 3D
+    camera; others: names of the loops that have an ``other`` plot."""
     import rerun.blueprint as rrb
 
     tabs = []
     for lp in info.loops:
         base = f"/loop/{lp.name}"
-        if getattr(lp, "stages", None) is None:
-            z_view = rrb.TimeSeriesView(origin=f"{base}/z", name=f"{lp.name}: state z")
-            u_view = rrb.TimeSeriesView(origin=base, contents=[f"{base}/u", f"{base}/u0"], name=f"{lp.name}: control u, u0")
-        else:
-            z_view = rrb.TimeSeriesView(origin=base, contents=[f"{base}/{f}/**" for f in ("z", "z_hat", "z_measured")],
-                                        name=f"{lp.name}: true z vs estimate z_hat and reading z_measured")
-            u_view = rrb.TimeSeriesView(origin=base, contents=[f"{base}/u", f"{base}/u_applied", f"{base}/u0"],
-                                        name=f"{lp.name}: u asked vs u_applied, u0")
-        tabs.append(rrb.Vertical(
-            z_view,
-            u_view,
-            rrb.TimeSeriesView(origin=base, contents=[f"{base}/V1"], name=f"{lp.name}: V1"),
-            rrb.TimeSeriesView(origin=base, contents=[f"{base}/{f}" for f in ("phi_hat", "gamma_hat", "phi", "gamma")],
-                               name=f"{lp.name}: phi_hat, gamma_hat vs true phi, gamma"),
-            name=lp.name))
-    plots = tabs[0] if len(tabs) == 1 else rrb.Tabs(*tabs)
+        staged = getattr(lp, "stages", None) is not None
+        plots = [rrb.TimeSeriesView(origin=f"{base}/z", name=f"{lp.name}: " + (
+                     "true z vs estimate z_hat and reading z_measured" if staged else "state z")),
+                 rrb.TimeSeriesView(origin=f"{base}/control", name=f"{lp.name}: " + (
+                     "u asked, u0, u_applied" if staged else "u, u0") + " (min/max per pixel)"),
+                 rrb.TimeSeriesView(origin=f"{base}/V1", name=f"{lp.name}: log10 V1, settle level, Theorem 1 envelope"),
+                 rrb.TimeSeriesView(origin=f"{base}/adaptation", name=f"{lp.name}: phi_hat, gamma_hat vs true phi, gamma")]
+        if lp.name in others:
+            plots.append(rrb.TimeSeriesView(origin=f"{base}/other", name=f"{lp.name}: other signals"))
+        tabs.append(rrb.Vertical(*plots, name=lp.name))
+    right = tabs[0] if len(tabs) == 1 else rrb.Tabs(*tabs)
+    docs = rrb.Tabs(rrb.TextDocumentView(origin="/run/status", name="status and metrics"),
+                    rrb.TextDocumentView(origin="/run/scenario", name="scenario"))
     if info.model_xml is None:
-        return rrb.Blueprint(plots, collapse_panels=True)
-    return rrb.Blueprint(rrb.Horizontal(rrb.Spatial3DView(origin="/world", name="plant"), plots),
-                         collapse_panels=True)
+        left = docs
+    else:
+        controls = None
+        if eye is not None:
+            controls = rrb.archetypes.EyeControls3D(kind=rrb.components.Eye3DKind.Orbital, position=eye[0].tolist(),
+                                                    look_target=eye[1].tolist(), eye_up=[0.0, 0.0, 1.0])
+        left = rrb.Vertical(rrb.Spatial3DView(origin="/world", name="plant", eye_controls=controls), docs,
+                            row_shares=[3, 1])
+    return rrb.Blueprint(rrb.Horizontal(left, right, column_shares=[2, 3]), collapse_panels=True)
 
 
 def _xyzw(q_wxyz):
@@ -87,48 +142,155 @@ def log_shapes(rec, info: RunInfo) -> None:
         rec.log(path, arch, static=True)
 
 
-class RerunSink:
-    """Writes a run to a Rerun recording file at ``path`` (created or overwritten at :meth:`open`)."""
+def envelope(cert, V1_0: float, duration: float, n: int = ENVELOPE_POINTS):
+    """Theorem 1's envelope from V1(0) = V1_0: (t (m,), V1 bound (m,)) on [0, min(T, duration)],
+    and T(z0) (s, inf when the certificate gives none). From dV1/dt <= -c V1^alpha (comparison lemma)."""
+    T = float(cert.time_bound(V1_0)) if cert is not None and cert.certified else math.inf
+    if not math.isfinite(T) or not V1_0 > 0:
+        return np.empty(0), np.empty(0), T
+    a, c = cert.alpha, cert.c
+    t = np.linspace(0.0, min(T, duration), n)
+    inner = np.maximum(V1_0 ** (1.0 - a) - c * (1.0 - a) * t, 0.0)
+    return t, inner ** (1.0 / (1.0 - a)), T
 
-    def __init__(self, path, application_id: str = APPLICATION_ID):
-        self.path = str(path)
+
+def _labels(field: str, a) -> list[str]:
+    """Series names of one field: itself for (n,), field1..fieldw for (n, w) (z -> z1, z2)."""
+    w = int(np.prod(np.shape(a)[1:], dtype=int))
+    return [field] if np.ndim(a) == 1 else [f"{field}{i + 1}" for i in range(w)]
+
+
+def _log10(v: np.ndarray) -> np.ndarray:
+    out = np.full(v.shape, np.nan)
+    pos = v > 0
+    out[pos] = np.log10(v[pos])
+    return out
+
+
+class RerunSink:
+    """Writes a run to a Rerun recording: a file at ``path`` (created or overwritten at :meth:`open`),
+    or, with ``live``, a viewer as well: "spawn" (a native viewer), "serve" (a web viewer on
+    ``web_port``, gRPC on ``grpc_port``) or a gRPC URL to connect to."""
+
+    def __init__(self, path, application_id: str = APPLICATION_ID, live: str | None = None,
+                 web_port: int = 9090, grpc_port: int = 9876):
+        self.path = str(path) if path is not None else None
         self.application_id = application_id
+        self.live, self.web_port, self.grpc_port = live, web_port, grpc_port
         self._rec = None
 
     def open(self, info: RunInfo) -> None:
         import rerun as rr
 
         self._info = info
-        try:  # fail with our own one-line error before Rerun builds anything
-            open(self.path, "wb").close()
-        except OSError as exc:
-            raise LogError(f"{self.path}: cannot write the Rerun recording ({exc.strerror})") from None
+        if self.path is not None:
+            try:  # fail with our own one-line error before Rerun builds anything
+                open(self.path, "wb").close()
+            except OSError as exc:
+                raise LogError(f"{self.path}: cannot write the Rerun recording ({exc.strerror})") from None
         rec = rr.RecordingStream(self.application_id)
-        rec.save(self.path, default_blueprint=blueprint(info))
         self._rec = rec
+        self._attached = False
+        self._V1_0 = {}
         rec.log("/run/scenario", rr.TextDocument(_pretty(info.scenario), media_type="text/plain"), static=True)
+        rec.log("/run/status", rr.TextDocument("running", media_type="text/plain"), static=True)
+        for lp in info.loops:
+            self._log_styles(lp)
         if info.model_xml is not None:
             log_shapes(rec, info)
-        rec.flush()
+
+    def _log_styles(self, lp) -> None:
+        import rerun as rr
+
+        rec, base = self._rec, f"/loop/{lp.name}"
+        for name in ("log10_V1", "settle_level", "envelope"):
+            label = {"log10_V1": "log10 V1", "settle_level": "log10 settle level",
+                     "envelope": "log10 Theorem 1 envelope"}[name]
+            rec.log(f"{base}/V1/{name}", rr.SeriesLines(names=label, colors=V1_COLOURS[name],
+                                                        aggregation_policy="MinMax"), static=True)
+        rec.log(f"{base}/V1/T_z0", rr.SeriesPoints(names="T(z0)", colors=V1_COLOURS["T_z0"], markers="Cross",
+                                                   marker_sizes=8.0), static=True)
+
+    def _attach(self, body_pos, loops=None) -> None:
+        """Send the recording to its sinks, with the blueprint (camera from ``body_pos``; a plot of
+        the other fields of the first batch's ``loops``)."""
+        import rerun as rr
+
+        info, rec = self._info, self._rec
+        eye = _eye(info, body_pos) if info.model_xml is not None else None
+        others = []
+        for name, arrays in (loops or {}).items():
+            for plot, fields in (*PLOTS.items(), ("other", [f for f in arrays if f not in PLOTTED])):
+                names = [n for f in fields if f in arrays for n in _labels(f, arrays[f])]
+                if not names:
+                    continue
+                others += [name] if plot == "other" else []
+                colours = [FIXED_COLOURS.get(n) for n in names]
+                free = iter(c for c in PALETTE if c not in colours)
+                rec.log(f"/loop/{name}/{plot}", rr.SeriesLines(
+                    names=names, colors=[c or next(free) for c in colours],
+                    aggregation_policy="MinMax" if plot == "control" else None), static=True)
+        bp = blueprint(info, eye, others)
+        sinks = []
+        if self.path is not None:
+            sinks.append(rr.FileSink(self.path))
+        if self.live:
+            sinks.append(rr.GrpcSink(start_viewer(self.live, self.grpc_port, self.web_port)))
+        if sinks:
+            rec.set_sinks(*sinks, default_blueprint=bp)
+        self._attached = True
+
+    def _static_bounds(self, lp, V1_0: float) -> None:
+        """Settle level and Theorem 1's envelope for loop ``lp`` from its first V1 (V1_0)."""
+        import rerun as rr
+
+        from ftstab_mj.metrics import bound_applies, loop_certificate
+
+        base, rec = f"/loop/{lp.name}", self._rec
+        duration = float(self._info.scenario.get("sim", {}).get("duration", 0.0) or 0.0) if isinstance(
+            self._info.scenario.get("sim"), dict) else 0.0
+        level = self._info.metric_settings.settle_level
+        ends = np.array([0.0, max(duration, self._info.period)])
+        rec.send_columns(f"{base}/V1/settle_level", indexes=[rr.TimeColumn(TIMELINE, duration=ends)],
+                         columns=rr.Scalars.columns(scalars=np.log10(np.full(2, level))))
+        if lp.law not in ("nominal", "robust"):
+            return
+        cert = loop_certificate(lp)
+        t, bound, T = envelope(cert, V1_0, duration if duration > 0 else math.inf)
+        if len(t):
+            rec.send_columns(f"{base}/V1/envelope", indexes=[rr.TimeColumn(TIMELINE, duration=t)],
+                             columns=rr.Scalars.columns(scalars=_log10(bound)))
+        if math.isfinite(T):
+            rec.send_columns(f"{base}/V1/T_z0", indexes=[rr.TimeColumn(TIMELINE, duration=[T])],
+                             columns=rr.Scalars.columns(scalars=[math.log10(level)]))
+            note = "" if bound_applies(lp) else " (the true bounds exceed the assumed ones: not a guarantee)"
+            rec.log(f"{base}/V1/T_z0/note", rr.TextDocument(f"T(z0) = {T:.4g} s{note}"), static=True)
 
     def write(self, batch: SampleBatch) -> None:
         import rerun as rr
 
         rec = self._rec
+        if not self._attached:
+            self._attach(batch.body_pos, batch.loops)
         t = None
-        for name, arrays in batch.loops.items():
+        for lp in self._info.loops:
+            arrays = batch.loops.get(lp.name)
+            if arrays is None or len(arrays["t"]) == 0:
+                continue
             t = np.asarray(arrays["t"], dtype=float)
+            base = f"/loop/{lp.name}"
+            if lp.name not in self._V1_0:
+                self._V1_0[lp.name] = float(arrays["V1"][0])
+                self._static_bounds(lp, self._V1_0[lp.name])
             idx = [rr.TimeColumn(TIMELINE, duration=t)]
-            for f in ("z", "z_hat", "z_measured"):
-                if f not in arrays:
-                    continue
-                z = np.asarray(arrays[f], dtype=float)
-                for i in range(z.shape[1]):
-                    rec.send_columns(f"/loop/{name}/{f}/z{i + 1}", indexes=idx,
-                                     columns=rr.Scalars.columns(scalars=z[:, i]))
-            for f in LOOP_FIELDS[2:] + (("u_applied",) if "u_applied" in arrays else ()):
-                rec.send_columns(f"/loop/{name}/{f}", indexes=idx,
-                                 columns=rr.Scalars.columns(scalars=np.asarray(arrays[f], dtype=float)))
+            for plot, fields in PLOTS.items():
+                rec.send_columns(f"{base}/{plot}", indexes=idx, columns=rr.Scalars.columns(scalars=np.column_stack(
+                    [np.asarray(arrays[f], float).reshape(len(t), -1) for f in fields if f in arrays])))
+            rec.send_columns(f"{base}/V1/log10_V1", indexes=idx,
+                             columns=rr.Scalars.columns(scalars=_log10(np.asarray(arrays["V1"], float))))
+            others = [np.asarray(a, float).reshape(len(t), -1) for f, a in arrays.items() if f not in PLOTTED]
+            if others:
+                rec.send_columns(f"{base}/other", indexes=idx, columns=rr.Scalars.columns(scalars=np.hstack(others)))
         if t is not None and batch.body_pos.shape[1] > 0:
             self.write_poses(t, batch.body_pos, batch.body_quat)
         rec.flush()
@@ -137,6 +299,8 @@ class RerunSink:
         """Body poses at times t (m,) s: pos (m, nbody, 3) m, quat (m, nbody, 4) (w, x, y, z)."""
         import rerun as rr
 
+        if not self._attached:
+            self._attach(pos)
         idx = [rr.TimeColumn(TIMELINE, duration=np.asarray(t, dtype=float))]
         for b, body in enumerate(self._info.body_names):
             q = quat[:, b]
@@ -150,6 +314,8 @@ class RerunSink:
 
         if self._rec is None:
             return
+        if not self._attached:
+            self._attach(np.zeros((0, len(self._info.body_names), 3)))
         text = f"status: {status}\n" + (f"message: {message}\n" if message else "")
         if metrics:  # a failed run is closed without metrics
             text += "\n" + format_table(metrics)
@@ -157,6 +323,35 @@ class RerunSink:
         self._rec.flush()
         self._rec.disconnect()
         self._rec = None
+
+
+def start_viewer(live: str, grpc_port: int, web_port: int) -> str:
+    """Start the viewer a live run streams to and return its gRPC URL.
+
+    live: "spawn" (the native viewer, a separate process that outlives the run), "serve" (a
+    separate ``rerun --serve-web`` process: a web viewer at http://localhost:<web_port> and its
+    gRPC proxy on grpc_port, for a machine without a display), or a rerun+http:// URL of a viewer
+    already running (nothing is started)."""
+    import shutil
+    import subprocess
+    import time
+
+    import rerun as rr
+
+    url = f"rerun+http://127.0.0.1:{grpc_port}/proxy"
+    if live == "spawn":
+        rr.spawn(port=grpc_port, connect=False)
+    elif live == "serve":
+        exe = shutil.which("rerun")
+        if exe is None:
+            raise LogError("--live serve: expected the `rerun` command of rerun-sdk on PATH, found none")
+        subprocess.Popen([exe, "--serve-web", "--port", str(grpc_port), "--web-viewer-port", str(web_port)],
+                         stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                         start_new_session=True)
+        time.sleep(0.5)  # let it bind; a gRPC sink retries meanwhile anyway
+    else:
+        url = live
+    return url
 
 
 def _pretty(obj) -> str:
@@ -170,9 +365,10 @@ def write_rrd(path, info: RunInfo, loops: dict, poses, status: str, metrics: dic
     at their own rate (see :meth:`RerunSink.write_poses`)."""
     sink = RerunSink(path)
     sink.open(info)
-    n = min((len(a["t"]) for a in loops.values()), default=0)
-    sink.write(SampleBatch(loops, np.zeros((n, 0, 3)), np.zeros((n, 0, 4))))
     t, pos, quat = poses
+    sink._attach(pos, loops)  # the camera frames the recorded poses, the plots follow the logged fields
     if len(t) and pos.shape[1]:
         sink.write_poses(t, pos, quat)
+    n = min((len(a["t"]) for a in loops.values()), default=0)
+    sink.write(SampleBatch(loops, np.zeros((n, 0, 3)), np.zeros((n, 0, 4))))
     sink.close(status, metrics, message)

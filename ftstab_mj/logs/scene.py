@@ -13,10 +13,10 @@ import numpy as np
 
 # A model read from a log is untrusted: compiling it must neither read local files nor allocate
 # what its numbers declare. These elements name files or generate/allocate in bulk; a log's model
-# holding one is not compiled (its 3D is left out). Attributes ending in these name files or folders.
+# holding one is not compiled (its 3D is left out); so is one with an attribute naming a file or folder.
 UNTRUSTED_ELEMENTS = frozenset({"include", "mesh", "hfield", "texture", "skin", "flex", "flexcomp", "composite",
                                 "replicate", "plugin", "extension", "model", "attach", "instance", "frame"})
-FILE_ATTRIBUTES = ("file", "dir", "fileright", "fileleft", "fileup", "filedown", "filefront", "fileback")
+FILE_ATTRIBUTES = ("meshdir", "texturedir", "assetdir")  # and every attribute starting with "file"
 MAX_ELEMENTS = 10_000  # elements in a log's model (ours have tens)
 MAX_MODEL_CHARS = 1 << 20
 
@@ -69,7 +69,7 @@ def check_untrusted_model(model_xml: str, what: str) -> None:
             raise LogError(f"{what}: the model holds a <{tag}> element; a model from a log is not compiled when it "
                            "could read local files or allocate in bulk")
         for attr, value in el.attrib.items():
-            if attr.lower().endswith(FILE_ATTRIBUTES):
+            if attr.lower().startswith("file") or attr.lower() in FILE_ATTRIBUTES:
                 raise LogError(f"{what}: the model names a file or folder (<{tag} {attr}={value[:60]!r}>); "
                                "a model from a log never makes replay read local files")
 
