@@ -49,15 +49,6 @@ def cmd_certify(args) -> int:
     return 0
 
 
-def _flatten(d, prefix=""):
-    """{"a": {"b": 1}} -> {"a.b": 1} (lists stay leaves)."""
-    out = {}
-    for k, v in d.items():
-        p = f"{prefix}.{k}" if prefix else str(k)
-        out.update(_flatten(v, p) if isinstance(v, dict) else {p: v})
-    return out
-
-
 def _read_log(path):
     """read_log + the truncation warning on stderr."""
     from ftstab_mj.logs.reader import read_log
@@ -84,7 +75,9 @@ def cmd_replay(args) -> int:
     metrics = _replayed_metrics(log)
     diff = []
     if log.recorded and log.recorded.get("metrics"):  # a failed run records its status without metrics
-        rec, now = _flatten(log.recorded["metrics"]), _flatten(metrics)
+        from ftstab_mj.keypath import flatten
+
+        rec, now = flatten(log.recorded["metrics"]), flatten(metrics)
         # a metric the recording version did not compute yet (an older log) is not a difference
         diff = [f"  {k}: recorded {rec.get(k)!r}, recomputed {now.get(k)!r}"
                 for k in sorted(rec) if rec.get(k) != now.get(k)]
@@ -260,14 +253,16 @@ def cmd_sweep(args) -> int:
     from collections import Counter
     from pathlib import Path
 
+    from ftstab_mj.scenario.shipped import find_sweep
     from ftstab_mj.sweep import expand, load_sweep, run_sweep
     from ftstab_mj.sweep.runner import prepare
     from ftstab_mj.sweep.table import read_table
 
-    sweep = load_sweep(args.sweep)
+    sweep = load_sweep(find_sweep(args.sweep))
     rows = expand(sweep)
     out = Path(args.out or Path("runs") / sweep.name)
-    task, identity = prepare(sweep, args.set, out / "logs" if args.logs else None)  # all input checks, before any run
+    # every input check, every row validated, before any run or file
+    task, identity = prepare(sweep, rows, args.set, out / "logs" if args.logs else None)
     engine = args.engine or ("dask" if args.workers > 1 or args.scheduler else "serial")
     if engine == "serial" and (args.workers > 1 or args.scheduler):
         raise UsageError("--engine serial: expected no --workers/--scheduler (one process runs everything)")
@@ -368,7 +363,7 @@ def build_parser() -> argparse.ArgumentParser:
                     "Exit 0 when every run is in the table, 1 when runs were lost by dead workers, "
                     "130 when interrupted, 2 on bad input.",
         epilog="example: ftstab sweep scenarios/sweeps/robust_accuracy_vs_period.toml --workers 2 --report")
-    w.add_argument("sweep", help="sweep file (.toml)")
+    w.add_argument("sweep", help="sweep file (.toml) or shipped sweep name (scenarios/sweeps/<name>.toml)")
     w.add_argument("--workers", type=_workers, default=1, metavar="N",
                    help="parallel runs (default 1: serial; 'all': one per core); N > 1 starts a local Dask "
                         "cluster of N processes")

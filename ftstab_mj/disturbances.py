@@ -18,6 +18,17 @@ import numpy as np
 from ftstab_mj.errors import ParameterError
 
 KINDS = ("constant", "step", "sine", "square", "chirp", "random", "worst_case")
+# The keys a scenario may give for each kind (the loader refuses the others: they would do nothing).
+KEYS_BY_KIND = {
+    "constant": ("offset",),
+    "step": ("offset", "amplitude", "t_step"),
+    "sine": ("offset", "amplitude", "freq", "phase"),
+    "square": ("offset", "amplitude", "freq", "phase"),
+    "chirp": ("offset", "amplitude", "freq", "freq_end", "duration", "phase"),
+    "random": ("offset", "amplitude", "freq", "modes"),
+    "worst_case": ("offset", "amplitude"),
+}
+MAX_MODES = 10_000  # each value sums `modes` sinusoids, at every physics step of the run
 
 
 @dataclass(frozen=True)
@@ -25,13 +36,15 @@ class Signal:
     """offset + amplitude * shape(t).
 
     kind: one of KINDS.
-    offset, amplitude: value units (chain units of phi or gamma); amplitude >= 0.
+    offset, amplitude: value units (chain units of phi or gamma); amplitude >= 0, except for a step,
+      whose amplitude is signed (a step down: an actuator that loses gain at t_step).
     freq: Hz (sine, square; chirp start; random: highest frequency of the band).
     freq_end: Hz, chirp end frequency reached at t = duration.
     duration: s, chirp sweep time.
     phase: rad (sine, square, chirp).
     t_step: s, step time (shape 0 before, 1 from t_step on).
-    modes: number of sinusoids summed by ``random``; seed: its randomness.
+    modes: number of sinusoids summed by ``random`` (1..MAX_MODES); seed: its randomness (0..2^64 - 1).
+    KEYS_BY_KIND lists which of these each kind uses.
     """
 
     kind: str = "constant"
@@ -54,14 +67,17 @@ class Signal:
             if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)) or not np.isfinite(v):
                 raise ParameterError(name, "a finite number", v)
             object.__setattr__(self, name, float(v))
-        if self.amplitude < 0:
-            raise ParameterError("amplitude", "a number >= 0", self.amplitude)
+        if self.amplitude < 0 and self.kind != "step":
+            raise ParameterError("amplitude", "a number >= 0 (only a step's amplitude is signed)", self.amplitude)
         if self.freq < 0 or self.freq_end < 0:
             raise ParameterError("freq", "a frequency >= 0 Hz", self.freq if self.freq < 0 else self.freq_end)
         if self.duration <= 0:
             raise ParameterError("duration", "a number > 0 (s)", self.duration)
-        if isinstance(self.modes, bool) or not isinstance(self.modes, (int, np.integer)) or self.modes < 1:
-            raise ParameterError("modes", "an integer >= 1", self.modes)
+        if isinstance(self.modes, bool) or not isinstance(self.modes, (int, np.integer)) or not 1 <= self.modes <= MAX_MODES:
+            raise ParameterError("modes", f"an integer in [1, {MAX_MODES}] (each value sums this many sinusoids, "
+                                 "at every physics step)", self.modes)
+        if isinstance(self.seed, bool) or not isinstance(self.seed, (int, np.integer)) or not 0 <= self.seed < 2 ** 64:
+            raise ParameterError("seed", "an integer in [0, 2^64)", self.seed)
         if self.kind == "random":
             rng = np.random.default_rng(self.seed)
             freqs = rng.uniform(0.0, self.freq, self.modes)

@@ -23,7 +23,8 @@ import math
 from dataclasses import dataclass
 
 from ftstab_mj.errors import ScenarioError
-from ftstab_mj.tomlfile import read_toml
+from ftstab_mj.tomlfile import dumps, read_toml
+from ftstab_mj.validate import number_problem
 
 SPEC_KEYS = ("value", "atol", "rtol", "min", "max", "null")
 
@@ -63,8 +64,8 @@ def _fmt(x) -> str:
 def _numbers(source, path, what, x):
     """x as a list of floats (a scalar becomes a one-element list); validates the expectation."""
     items = x if isinstance(x, list) else [x]
-    if not items or not all(_is_number(v) for v in items):
-        raise ExpectationError(source, f"{path}.{what}", "a number or a list of numbers", _fmt(x))
+    if not items or any(number_problem(v) for v in items):
+        raise ExpectationError(source, f"{path}.{what}", "a finite number or a list of finite numbers", _fmt(x))
     return [float(v) for v in items]
 
 
@@ -206,35 +207,9 @@ def pin_expectations(metrics: dict, info) -> dict:
             "loops": {name: pin_loop(m, info.period, rates[name]) for name, m in metrics["loops"].items()}}
 
 
-def _toml_value(v) -> str:
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    if isinstance(v, str):
-        return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
-    if isinstance(v, float):
-        return repr(v) if math.isfinite(v) else ("nan" if v != v else ("inf" if v > 0 else "-inf"))
-    if isinstance(v, list):
-        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
-    if isinstance(v, dict):
-        return "{ " + ", ".join(f"{k} = {_toml_value(x)}" for k, x in v.items()) + " }"
-    return str(v)
-
-
 def to_toml(tree: dict, header: str = "") -> str:
     """TOML text of an expectation tree: scalars and specs inline, metric groups as tables."""
-    lines = [f"# {line}" if line else "#" for line in header.splitlines()]
-
-    def emit(table: dict, name: str):
-        leaves = {k: v for k, v in table.items() if not (isinstance(v, dict) and not set(v) <= set(SPEC_KEYS))}
-        groups = {k: v for k, v in table.items() if k not in leaves}
-        if name and leaves:
-            lines.append(f"\n[{name}]")
-        lines.extend(f"{k} = {_toml_value(v)}" for k, v in leaves.items())
-        for k, v in groups.items():
-            emit(v, f"{name}.{k}" if name else k)
-
-    emit(tree, "")
-    return "\n".join(lines) + "\n"
+    return dumps(tree, header, inline=lambda table: set(table) <= set(SPEC_KEYS))
 
 
 PIN_HEADER = f"""Pinned metrics (ftstab check LOG.mcap --expect THIS_FILE). Tolerances (ftstab_mj/expectations.py):

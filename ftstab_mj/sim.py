@@ -54,6 +54,7 @@ from ftstab_mj.plants.base import Plant
 from ftstab_mj.records import (COMPLETED, DIVERGED, FAILED, INTERRUPTED, LOOP_FIELDS, LoopInfo,
                                MetricSettings, RunInfo, SampleBatch)
 from ftstab_mj.scenario.schema import LoopSpec
+from ftstab_mj.validate import whole_steps
 
 # MuJoCo warnings that mean the simulation blew up (MuJoCo resets the data when they fire).
 _DIVERGENCE_WARNINGS = (mujoco.mjtWarning.mjWARN_BADQPOS, mujoco.mjtWarning.mjWARN_BADQVEL,
@@ -84,8 +85,8 @@ def steps_per_period(period: float, physics_step: float) -> int:
     for name, v in (("physics_step", physics_step), ("period", period)):
         if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)) or not (np.isfinite(v) and v > 0):
             raise ParameterError(name, "a finite number > 0 (s)", v)
-    n = int(round(period / physics_step))
-    if n < 1 or abs(n * physics_step - period) > 1e-9 * period:
+    n = whole_steps(period, physics_step)
+    if n is None:
         raise ParameterError("period", f"an integer multiple of the physics step {physics_step:g} s", period)
     return n
 

@@ -4,9 +4,13 @@ Builds the wheel from this checkout (no network: no build isolation, no dependen
 in an empty folder, and runs the command from there with the source tree out of sys.path.
 """
 
+import ast
+import importlib.metadata
 import os
+import re
 import subprocess
 import sys
+import tomllib
 import zipfile
 
 from conftest import ROOT
@@ -14,9 +18,11 @@ from conftest import ROOT
 
 def test_wheel_carries_models_and_scenarios_and_runs_without_the_source_tree(tmp_path):
     build = subprocess.run(
-        [sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "-q", "-w", str(tmp_path), str(ROOT)],
+        [sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "-v", "-w", str(tmp_path), str(ROOT)],
         capture_output=True, text=True, timeout=600, cwd=tmp_path)
     assert build.returncode == 0, build.stderr[-2000:]
+    # the metadata is in a form setuptools keeps accepting (the license table stops on 2027-02-18)
+    assert "SetuptoolsDeprecationWarning" not in build.stdout + build.stderr, build.stdout[-3000:]
     (wheel,) = tmp_path.glob("ftstab_mj-*.whl")
     names = zipfile.ZipFile(wheel).namelist()
     for model in sorted(p.name for p in (ROOT / "models").glob("*.xml")):
@@ -37,3 +43,29 @@ def test_wheel_carries_models_and_scenarios_and_runs_without_the_source_tree(tmp
     probe = subprocess.run([sys.executable, "-c", "import ftstab_mj.resources as r; print(r.data_dir('models'))"],
                            capture_output=True, text=True, cwd=elsewhere, env=env)
     assert probe.stdout.strip().startswith(str(site))
+
+
+def _requirement_name(req: str) -> str:
+    return re.sub(r"[-_.]+", "-", re.match(r"[A-Za-z0-9._-]+", req).group(0)).lower()
+
+
+def test_every_imported_package_is_declared_and_the_license_is_an_spdx_expression():
+    """Each third-party module that ftstab_mj imports (anywhere, lazily too) comes from a distribution
+    listed in pyproject's dependencies, not only from another dependency's requirements."""
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text())
+    assert isinstance(project["project"]["license"], str)  # PEP 639 SPDX expression
+    assert "setuptools>=77" in project["build-system"]["requires"]  # the first setuptools that reads it
+    declared = {_requirement_name(r) for r in project["project"]["dependencies"]}
+    imported = set()
+    for path in (ROOT / "ftstab_mj").rglob("*.py"):
+        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+            if isinstance(node, ast.Import):
+                imported.update(a.name.split(".")[0] for a in node.names)
+            elif isinstance(node, ast.ImportFrom) and node.level == 0:
+                imported.add(node.module.split(".")[0])
+    third_party = sorted(m for m in imported if m not in sys.stdlib_module_names and m != "ftstab_mj")
+    assert "numpy" in third_party and "pyarrow" in third_party  # the walk sees lazy imports too
+    dists = importlib.metadata.packages_distributions()
+    missing = {m: dists.get(m) for m in third_party
+               if not {_requirement_name(d) for d in dists.get(m, [m])} & declared}
+    assert not missing, f"imported but not in pyproject's dependencies (module: distributions): {missing}"

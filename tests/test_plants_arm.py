@@ -131,7 +131,8 @@ def test_leaving_the_workspace_is_reported(arm):
 @pytest.mark.parametrize("params, match", [
     ({"link_lengths": [0.5]}, "params.link_lengths: expected 2 finite numbers > 0"),
     ({"q_min": [0.0, 0.0], "q_max": [1.0, -1.0]}, "params.q_max: expected numbers above q_min"),
-    ({"grid": 1}, "params.grid: expected an integer >= 2"),
+    ({"grid": 1}, r"params.grid: expected an integer in \[2, 161\]"),
+    ({"grid": 100000}, r"params.grid: expected an integer in \[2, 161\] \(the bounds evaluate grid\^2"),
     ({"elbow": 1}, "params.elbow: expected a parameter of model 'arm'"),
 ])
 def test_bad_arm_parameters_are_named(params, match):

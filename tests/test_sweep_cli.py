@@ -12,8 +12,8 @@ from ftstab_mj.metrics import compute_metrics
 from ftstab_mj.scenario import load_scenario
 from ftstab_mj.scenario.run import run_scenario
 from ftstab_mj.sweep import expand, load_sweep
-from ftstab_mj.sweep.runner import override_text
 from ftstab_mj.sweep.table import VARYING_COLUMNS, flatten, read_table
+from ftstab_mj.tomlfile import value_text
 
 SWEEPS = ROOT / "scenarios" / "sweeps"
 PNG = b"\x89PNG\r\n\x1a\n"
@@ -23,9 +23,8 @@ def results(table: dict) -> dict:
     return {k: v for k, v in table.items() if k not in VARYING_COLUMNS}
 
 
-def small_sweep(tmp_path, duration=0.3, physics_step=1e-3, periods="1e-3, 1.5e-3, 2e-3") -> str:
-    """4 runs per period of the r = 2 robust cart; by default sim.period = 1.5 ms is not a multiple of
-    the 1 ms physics step (a failing combination)."""
+def small_sweep(tmp_path, duration=0.3, physics_step=1e-3, periods="1e-3, 2e-3, 3e-3") -> str:
+    """4 runs per period of the r = 2 robust cart."""
     path = tmp_path / "small.toml"
     path.write_text(f'''name = "small"
 description = "engines, failures and resume on real runs"
@@ -47,7 +46,7 @@ samples = 2
 def test_shipped_accuracy_vs_period_sweep_end_to_end(tmp_path):
     sweep = SWEEPS / "robust_accuracy_vs_period.toml"
     out = tmp_path / "o"
-    res = run_cli("sweep", sweep, "--set", "sim.duration=0.1", "--out", out, "--engine", "processes",
+    res = run_cli("sweep", "robust_accuracy_vs_period", "--set", "sim.duration=0.1", "--out", out, "--engine", "processes",
                   "--workers", "2", "--report")
     assert res.returncode == 0, res.stderr
     t = read_table(out / "robust_accuracy_vs_period.parquet")
@@ -59,10 +58,11 @@ def test_shipped_accuracy_vs_period_sweep_end_to_end(tmp_path):
     assert len(figures) == 2 and all(f.read_bytes()[:8] == PNG for f in figures)
     for series in ("plant.model = cart:", "plant.model = cart_integrating:"):
         assert series in res.stdout
-    # a row is the base scenario + the sweep's overrides, run as `ftstab run` runs it: same metrics
+    # a row is the base scenario + the sweep's values (set as typed values), run as `ftstab run` runs
+    # it with the same values as --set texts: same metrics
     sw = load_sweep(sweep)
     row = expand(sw)[5]
-    texts = [override_text(p, v) for p, v in sw.set] + ["sim.duration=0.1"] + [override_text(p, v) for p, v in row.params]
+    texts = [f"{p}={value_text(v)}" for p, v in sw.set + (("sim.duration", 0.1),) + row.params]
     direct = flatten(run_scenario(load_scenario(sw.scenario, texts)).metrics, "metrics", {})
     assert {k: t[k][5] for k in direct} == direct
 
@@ -92,22 +92,15 @@ def test_same_table_serially_on_two_processes_and_on_two_dask_workers(tmp_path):
                            ("dask", ("--scheduler", cluster.scheduler_address))):
             res = run_cli("sweep", sweep, "--out", tmp_path / name, *args)
             assert res.returncode == 0, res.stderr
-            assert "12/12 runs in the table (8 completed, 4 failed)" in res.stdout
+            assert "12/12 runs in the table (12 completed)" in res.stdout
             tables[name] = results(read_table(tmp_path / name / "small.parquet"))
     assert tables["processes"] == tables["serial"]
     assert tables["dask"] == tables["serial"]
     t = tables["serial"]
-    for i, period in enumerate(t["sim.period"]):
-        if period == 1.5e-3:  # the failing combination: the scenario loader's own one-line error
-            assert t["status"][i] == "failed"
-            assert "ScenarioError" in t["error"][i] and "sim.period: expected an integer multiple" in t["error"][i]
-            assert t["metrics.loops.cart.V1_final"][i] is None
-        else:
-            assert t["status"][i] == "completed" and t["metrics.loops.cart.V1_final"][i] is not None
-    # --logs: each completed run's MCAP log replays to the metrics of its row; a run refused by the
-    # loader never started, so it has no log
+    assert all(v is not None for v in t["metrics.loops.cart.V1_final"])
+    # --logs: each run's MCAP log replays to the metrics of its row
     logs = tmp_path / "serial" / "logs"
-    done = [i for i, s in enumerate(t["status"]) if s == "completed"]
+    done = list(range(12))
     assert sorted(p.name for p in logs.glob("*.mcap")) == [f"row{i:05d}.mcap" for i in done]
     assert len(list(logs.glob("*.rrd"))) == len(done)
     data = read_log(logs / f"row{done[-1]:05d}.mcap")
@@ -152,7 +145,15 @@ def test_interrupted_sweep_resumes_without_rerunning_finished_rows(tmp_path):
 
 @pytest.mark.parametrize("edit, args, message", [
     (lambda s: s.replace('"sim.period"', '"sim.perod"'), (),
-     r'small.toml: grid."sim.perod": expected a key path of the base scenario cart_r2_robust.toml, found \'sim.perod\''),
+     r"small.toml \(row 0: sim.perod = 0.001\): sim.perod: expected one of the keys duration, .*found unknown key 'perod'"),
+    # a combination the loader refuses is bad input, found before anything runs (not a failed row)
+    (lambda s: s.replace("1e-3, 2e-3, 3e-3", "1e-3, 1.5e-3"), (),
+     r"small.toml \(row 4: sim.period = 0.0015\): sim.period: expected an integer multiple of sim.physics_step "
+     r"= 0.001 s, found 0.0015 s \(1.5 steps\)"),
+    # a grid over a whole controller table: each row's table replaces the base's (law parameters included)
+    (lambda s: s.replace('"sim.period" = [1e-3, 2e-3, 3e-3]', '"loops.cart.controller" = [{law = "nominal", k = -0.2, '
+                         'gains = [1.0, 2.0]}, {law = "nominal", k = -0.2, gains = [1.0, 2.0], kappa = 1.0}]'), (),
+     r"small.toml \(row 4: loops.cart.controller = .*\): loops.cart.controller.kappa: expected only the nominal law"),
     (lambda s: s, ("--set", "sim.duration=-1"),
      r"cart_r2_robust.toml \(--set sim.duration=-1\): sim.duration: expected a number > 0"),
     (lambda s: s, ("--engine", "serial", "--workers", "2"), r"--engine serial: expected no --workers"),

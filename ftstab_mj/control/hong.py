@@ -236,6 +236,11 @@ def validate_hong(r, k, gains, form="full", check_hurwitz=True) -> None:
     for i, g in enumerate(gains):
         if isinstance(g, bool) or not isinstance(g, (int, float, np.integer, np.floating)) or not np.isfinite(g) or g <= 0:
             raise ParameterError(f"gains[{i}] (l_{i + 1})", "a finite number > 0", g)
+    with np.errstate(over="ignore"):  # an overflow is the answer here, not a warning
+        finite = bool(np.all(np.isfinite(nested_polynomial(gains))))
+    if check_hurwitz and not finite:  # np.roots needs finite coefficients
+        raise ParameterError("gains", "gains whose products (the nested polynomial's coefficients) are below "
+                             "1.8e308, the largest float", gains)
     if check_hurwitz and not is_hurwitz(gains):
         raise ParameterError(
             "gains",

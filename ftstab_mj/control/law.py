@@ -34,6 +34,7 @@ from typing import Any, Callable, ClassVar, NamedTuple
 import numpy as np
 
 from ftstab_mj.errors import ParameterError
+from ftstab_mj.validate import non_negative, one_of, open_unit_interval, positive  # noqa: F401 - the checks Params use
 
 REQUIRED = object()  # Param.default of a parameter the scenario must give
 
@@ -180,22 +181,3 @@ def scenario_params() -> dict[str, Param]:
         for p in cls.all_params():
             out.setdefault(p.name, p)
     return out
-
-
-# -- checks shared by law declarations -------------------------------------------------------------
-def positive(v):
-    return None if v > 0 else "a number > 0"
-
-
-def non_negative(v):
-    return None if v >= 0 else "a number >= 0"
-
-
-def open_unit_interval(v):
-    return None if 0 < v < 1 else "a number in the open interval (0, 1)"
-
-
-def one_of(*allowed):
-    def check(v):
-        return None if v in allowed else "one of " + ", ".join(repr(a) for a in allowed)
-    return check

@@ -30,6 +30,7 @@ import numpy as np
 from ftstab_mj.callback import control_callback
 from ftstab_mj.errors import ParameterError
 from ftstab_mj.resources import data_dir
+from ftstab_mj.validate import number_problem
 
 MODELS_DIR = data_dir("models")
 
@@ -40,7 +41,7 @@ INTEGRATORS = {"euler": mujoco.mjtIntegrator.mjINT_EULER, "rk4": mujoco.mjtInteg
 def number(params: dict, key: str, default: float, *, positive=False, nonneg=False) -> float:
     """params[key] (or default) as a finite float, checked; ParameterError names ``params.key``."""
     v = params.get(key, default)
-    ok = isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool) and np.isfinite(v)
+    ok = number_problem(v) is None
     if ok and positive:
         ok = v > 0
     if ok and nonneg:

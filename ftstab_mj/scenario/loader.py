@@ -16,194 +16,90 @@ the same checks as the file. The value is read as a TOML value (``2``, ``-0.1``,
 from __future__ import annotations
 
 import math
-import re
-import tomllib
-import types
-import typing
 import zlib
-from dataclasses import MISSING, fields, is_dataclass, replace
+from dataclasses import fields, is_dataclass, replace
 
 import numpy as np
 
+from ftstab_mj import keypath
 from ftstab_mj.control import law_class
-from ftstab_mj.disturbances import Signal
+from ftstab_mj.disturbances import KEYS_BY_KIND, Signal
 from ftstab_mj.errors import ParameterError, ScenarioError
 from ftstab_mj.scenario.schema import (
     COMPUTED, EXTERNAL_CHECKS, SIGNAL_DERIVED, ControllerSpec, LoopSpec, PlantSpec, Scenario, SensorSpec,
-    period_is_multiple,
 )
-from ftstab_mj.tomlfile import read_toml
+from ftstab_mj.tomlfile import parse_text, read_toml
+from ftstab_mj.validate import LIMITS, Reader, describe, limit_text, whole_steps
 
 _SIGNAL_ROLES = {"disturbance": 1, "gain": 2, "sensor": 3}
 
 
-def describe(value) -> str:
-    """A found value as the user wrote it, with its TOML type: ``'abc' (a string)``."""
-    kind = {bool: "a boolean", int: "an integer", float: "a float", str: "a string", list: "an array",
-            dict: "a table"}.get(type(value), type(value).__name__)
-    text = repr(value) if not isinstance(value, bool) else str(value).lower()
-    if len(text) > 60:
-        text = text[:57] + "..."
-    return f"{text} ({kind})"
+class _Reader(Reader):
+    """Builds the typed Scenario from raw TOML data, raising ScenarioError with the key path."""
 
-
-def _join(path: str, key) -> str:
-    if isinstance(key, int):
-        return f"{path}[{key}]"
-    return f"{path}.{key}" if path else str(key)
-
-
-def _within(path: str, prefix: str) -> bool:
-    """True when ``path`` is ``prefix`` or lies inside it (``a.b[1]`` lies inside ``a.b``)."""
-    return path == prefix or path.startswith(prefix + ".") or path.startswith(prefix + "[")
-
-
-class _Reader:
-    """Builds typed objects from raw TOML data, raising ScenarioError with the key path."""
-
-    def __init__(self, source: str, overrides: dict[str, str] | None = None):
-        self.source = source
-        self.overrides = overrides or {}  # override path -> the --set text that wrote it
-
-    def error(self, path: str, expected: str, found: str) -> ScenarioError:
-        src = self.source
-        for opath, text in self.overrides.items():  # the override that set this path or a part of it
-            if _within(path, opath) or _within(opath, path):
-                src = f"{self.source} (--set {text})"
-        return ScenarioError(src, path or "(top level)", expected, found)
-
-    # -- scalars ------------------------------------------------------------------------------
-    def number(self, value, path) -> float:
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise self.error(path, "a number", describe(value))
-        if not math.isfinite(value):
-            raise self.error(path, "a finite number", describe(value))
-        return float(value)
-
-    def integer(self, value, path) -> int:
-        if isinstance(value, bool) or not isinstance(value, int):
-            raise self.error(path, "an integer", describe(value))
-        return value
-
-    def string(self, value, path) -> str:
-        if not isinstance(value, str):
-            raise self.error(path, "a string", describe(value))
-        return value
-
-    def convert(self, tp, value, path):
-        """Convert raw TOML ``value`` to the annotated type ``tp``."""
-        if tp is float:
-            return self.number(value, path)
-        if tp is int:
-            return self.integer(value, path)
-        if tp is str:
-            return self.string(value, path)
-        if tp is dict:
-            if not isinstance(value, dict):
-                raise self.error(path, "a table", describe(value))
-            return dict(value)
-        origin, args = typing.get_origin(tp), typing.get_args(tp)
-        if origin in (typing.Union, types.UnionType):  # X | None, float | str | None
-            inner = [a for a in args if a is not type(None)]
-            if isinstance(value, str) and str in inner:
-                return value
-            arrays = [a for a in inner if typing.get_origin(a) is tuple]
-            if isinstance(value, list) and arrays:  # "a number or an array": the array form
-                return self.convert(arrays[0], value, path)
-            return self.convert(inner[0], value, path)
-        if origin is tuple and len(args) == 2 and args[1] is Ellipsis:
-            if not isinstance(value, list) or not value:
-                raise self.error(path, "a non-empty array of numbers", describe(value))
-            return tuple(self.convert(args[0], v, _join(path, i)) for i, v in enumerate(value))
+    def special(self, tp, value, path):
         if tp is Signal:
             return self.signal(value, path)
-        if is_dataclass(tp):
-            return self.table(tp, value, path)
-        raise TypeError(f"schema type {tp!r} at {path} has no converter")  # a bug in the schema, not input
-
-    # -- tables -------------------------------------------------------------------------------
-    def fields_of(self, cls, value, path, skip=()):
-        """{field name: converted value} for the keys present in the table ``value``; checks keys."""
-        if not isinstance(value, dict):
-            raise self.error(path, "a table", describe(value))
-        hints = typing.get_type_hints(cls)
-        flds = [f for f in fields(cls) if f.init and not f.name.startswith("_") and f.name not in skip]
-        names = [f.name for f in flds]
-        for key in value:
-            if key not in names:
-                raise self.error(_join(path, key), "one of the keys " + ", ".join(names), f"unknown key {key!r}")
-        out = {}
-        checks = EXTERNAL_CHECKS.get(cls, {})
-        for f in flds:
-            p = _join(path, f.name)
-            if f.name not in value:
-                if f.default is MISSING and f.default_factory is MISSING:
-                    doc = f.metadata.get("doc", f.name)
-                    raise self.error(p, f"a value ({doc})", "nothing: the key is required")
-                continue
-            v = self.convert(hints[f.name], value[f.name], p)
-            check = f.metadata.get("check") or checks.get(f.name)
-            allowed = check(v) if check is not None and v is not None else None
-            if allowed:
-                raise self.error(p, allowed, describe(value[f.name]))
-            out[f.name] = v
-        return out
-
-    def table(self, cls, value, path):
-        return cls(**self.fields_of(cls, value, path, skip=SIGNAL_DERIVED if cls is SensorSpec else ()))
+        if tp is SensorSpec:  # its seed is derived, as a signal's
+            return SensorSpec(**self.fields_of(tp, value, path, skip=SIGNAL_DERIVED))
+        return NotImplemented
 
     def signal(self, value, path) -> Signal:
         kw = self.fields_of(Signal, value, path, skip=SIGNAL_DERIVED)
+        kind = kw.get("kind", "constant")
+        applies = KEYS_BY_KIND.get(kind, ())
+        for key in value:
+            if key != "kind" and key not in applies and kind in KEYS_BY_KIND:
+                raise self.error(keypath.join(path, key), f"only keys that a {kind} signal uses ("
+                                 + (", ".join(("kind",) + applies)) + ")", f"{key} = {describe(value[key])}")
         try:
             return Signal(**kw)
         except ParameterError as exc:
-            raise self.error(_join(path, exc.name), exc.allowed, describe(exc.given)) from None
+            raise self.error(keypath.join(path, exc.name), exc.allowed, describe(exc.given)) from None
 
     def plant(self, value, path) -> PlantSpec:
         if not isinstance(value, dict):
             raise self.error(path, "a table", describe(value))
         if "model" not in value:
-            raise self.error(_join(path, "model"), "a value (the plant model name)", "nothing: the key is required")
+            raise self.error(keypath.join(path, "model"), "a value (the plant model name)",
+                             "nothing: the key is required")
         params = {k: v for k, v in value.items() if k != "model"}
-        return PlantSpec(model=self.string(value["model"], _join(path, "model")), params=params)
+        return PlantSpec(model=self.string(value["model"], keypath.join(path, "model")), params=params)
 
     def loops(self, value, path) -> tuple[LoopSpec, ...]:
         if not isinstance(value, dict) or not value:
             raise self.error(path, "a table of loops [loops.<name>], at least one", describe(value))
         out = []
         for name, body in value.items():
-            p = _join(path, name)
+            p = keypath.join(path, name)
             if not isinstance(body, dict):
                 raise self.error(p, "a table [loops.<name>]", describe(body))
             if "name" in body:
-                raise self.error(_join(p, "name"), "no 'name' key (the table key is the loop name)", "a 'name' key")
+                raise self.error(keypath.join(p, "name"), "no 'name' key (the table key is the loop name)",
+                                 "a 'name' key")
             out.append(LoopSpec(name=name, **self.fields_of(LoopSpec, body, p, skip=("name",))))
         return tuple(out)
 
     def scenario(self, raw) -> Scenario:
         if not isinstance(raw, dict):
             raise self.error("", "a table", describe(raw))
+        self.bounded(raw)
         special = {"plant": self.plant, "loops": self.loops}
-        known = {f.name for f in fields(Scenario)}
-        for key in raw:
-            if key not in known:
-                raise self.error(key, "one of the keys " + ", ".join(f.name for f in fields(Scenario)),
-                                 f"unknown key {key!r}")
-        kw = self.fields_of(Scenario, {k: v for k, v in raw.items() if k not in special}, "",
-                            skip=tuple(special))
+        self.table(raw, "", [f.name for f in fields(Scenario)])
+        kw = self.fields_of(Scenario, {k: v for k, v in raw.items() if k not in special}, "", skip=tuple(special))
         for key, build in special.items():
             if key not in raw:
                 raise self.error(key, f"a [{key}] table", "nothing: the table is required")
             kw[key] = build(raw[key], key)
         return Scenario(**kw)
 
+    def fields_of(self, cls, value, path, skip=(), checks=None):
+        return super().fields_of(cls, value, path, skip, checks or EXTERNAL_CHECKS.get(cls))
+
 
 # -- checks across fields ------------------------------------------------------------------------
 def _check(sc: Scenario, rd: _Reader) -> Scenario:
-    sim = sc.sim
-    if not period_is_multiple(sim.period, sim.physics_step):
-        raise rd.error("sim.period", f"an integer multiple of sim.physics_step = {sim.physics_step:g} s",
-                       f"{sim.period:g} s ({sim.period / sim.physics_step:.6g} steps)")
+    _check_work(sc, rd)  # before the plant is built: nothing is allocated for a run it cannot do
     plant = _check_plant(sc, rd)
     r = plant.r
     loops = []
@@ -217,9 +113,20 @@ def _check(sc: Scenario, rd: _Reader) -> Scenario:
             if abs(zi) > 1e9:
                 raise rd.error(f"{p}.z0[{i}]", "|z0| <= 1e9 (MuJoCo resets states beyond 1e10)", describe(zi))
         _check_law_params(c, f"{p}.controller", rd)
+        if lp.gain.state_dependent:
+            raise rd.error(f"{p}.gain.kind", "a gain signal that depends on time only (worst_case is a "
+                           "disturbance: it needs dV1/dz_r)", describe(lp.gain.kind))
+        for role in _SIGNAL_ROLES:
+            sig = getattr(lp, role)
+            nyquist = 0.5 / sc.sim.physics_step
+            for key in ("freq", "freq_end"):
+                if key in KEYS_BY_KIND[sig.kind] and getattr(sig, key) > nyquist:
+                    raise rd.error(f"{p}.{role}.{key}", f"a frequency <= {nyquist:g} Hz (half the physics step "
+                                   "rate: a faster signal is only sampled as an alias)", describe(getattr(sig, key)))
         lo = lp.gain.bounds()[0]
         if lo <= 0:
-            raise rd.error(f"{p}.gain", "gamma(t) > 0 at all times (offset > amplitude)",
+            raise rd.error(f"{p}.gain", "gamma(t) > 0 at all times (offset above the amplitude, or a step "
+                           "that ends above 0)",
                            f"a signal reaching {lo:g}")
         _check_stages(lp, r, rd)
         seeds = {role: _derived_seed(sc.seed, lp.name, role) for role in _SIGNAL_ROLES}
@@ -273,6 +180,26 @@ def _check_stages(lp: LoopSpec, r: int, rd: _Reader) -> None:
     if order + nf > MAX_TOTAL_ORDER:
         raise rd.error(f"{p}.observer.order", f"order + filter_order <= {MAX_TOTAL_ORDER} (the range of Levant's "
                        "coefficients)", f"{order} + {nf}")
+
+
+def _check_work(sc: Scenario, rd: _Reader) -> None:
+    """The run's size: samples, physics steps per period and per run, within validate.LIMITS."""
+    sim = sc.sim
+    steps = sim.period / sim.physics_step  # both are finite and > 0: at most 1e308 / 1e-7, still finite
+    if steps > LIMITS["steps_per_period"][0]:
+        raise rd.error("sim.period", limit_text("steps_per_period", "physics steps per period"),
+                       f"{sim.period:g} s = {steps:.3g} steps of {sim.physics_step:g} s".replace("inf", "> 1e308"))
+    n = whole_steps(sim.period, sim.physics_step)
+    if n is None:
+        raise rd.error("sim.period", f"an integer multiple of sim.physics_step = {sim.physics_step:g} s",
+                       f"{sim.period:g} s ({steps:.6g} steps)")
+    samples = sim.duration / sim.period
+    if samples > LIMITS["samples"][0]:
+        raise rd.error("sim.duration", limit_text("samples", "control samples per run"),
+                       f"{sim.duration:g} s = {samples:.3g} periods of {sim.period:g} s")
+    if samples * n > LIMITS["steps"][0]:
+        raise rd.error("sim.duration", limit_text("steps", "physics steps per run"),
+                       f"{sim.duration:g} s = {samples * n:.3g} steps of {sim.physics_step:g} s")
 
 
 def _check_plant(sc: Scenario, rd: _Reader):
@@ -343,50 +270,51 @@ def scenario_from_dict(raw: dict, source: str = "<scenario>", overrides: dict[st
     return _check(rd.scenario(raw), rd)
 
 
-_PATH_RE = re.compile(r"^[A-Za-z_][A-Za-z0-9_-]*(\[\d+\])*(\.[A-Za-z_][A-Za-z0-9_-]*(\[\d+\])*)*$")
+def scenario_with(raw: dict, values, source: str, notes: dict[str, str] | None = None) -> Scenario:
+    """Validate a copy of ``raw`` with typed ``values`` ((key path, value), ...) set at their paths.
+
+    The values are set as they are (no TOML text in between); a table value replaces the table at its
+    path. ``notes``: {key path: what set it}, named in errors after ``source``.
+    """
+    import copy
+
+    data = copy.deepcopy(raw)
+    for path, value in values:
+        keypath.assign(data, keypath.parse(path), value, f"{source} ({(notes or {}).get(path, path)})")
+    return scenario_from_dict(data, source, notes)
 
 
 def parse_override(text: str, source: str) -> tuple[list, object, str]:
-    """``"a.b[1]=2"`` -> (["a", "b", 1], 2, "a.b[1]"). Raises ScenarioError on a malformed override."""
+    """``"a.b[1]=2"`` -> (["a", "b", 1], 2, "a.b[1]"). Raises ScenarioError on a malformed override.
+
+    The value is read as a TOML value (bounded like a file); anything that is not one is a string.
+    """
     if "=" not in text:
-        raise ScenarioError(source, f"--set {text}", "key.path=value", "no '='")
+        raise ScenarioError(source, f"--set {_short(text)}", "key.path=value", "no '='")
     key, _, val = text.partition("=")
     key = key.strip()
-    if not _PATH_RE.match(key):
-        raise ScenarioError(source, f"--set {text}", "a key path like sim.duration or loops.cart.z0[0]",
-                            repr(key))
-    parts: list = []
-    for piece in key.split("."):
-        name, *idx = re.split(r"\[", piece)
-        parts.append(name)
-        parts.extend(int(i.rstrip("]")) for i in idx)
+    parts = keypath.parse(key)
+    if parts is None:
+        raise ScenarioError(source, f"--set {_short(text)}", "a key path like sim.duration or loops.cart.z0[0]",
+                            repr(_short(key)))
+    val = val.strip()
     try:
-        value = tomllib.loads(f"v = {val.strip()}")["v"]
-    except tomllib.TOMLDecodeError:
-        value = val.strip()  # not a TOML value: a bare string such as a model name
+        value = parse_text(f"v = {val}", f"{source} (--set {_short(text)})", where=key)["v"]
+    except ScenarioError as exc:
+        if exc.expected != "valid TOML":  # too deep or too big: a TOML value, refused
+            raise
+        value = val  # not a TOML value: a bare string such as a model name
     return parts, value, key
+
+
+def _short(text: str) -> str:
+    return text if len(text) <= 80 else text[:77] + "..."
 
 
 def apply_override(raw: dict, text: str, source: str) -> str:
     """Apply one ``--set key.path=value`` to raw data in place; returns the key path it set."""
     parts, value, key = parse_override(text, source)
-    node, path = raw, ""
-    for part, nxt in zip(parts, parts[1:] + [None]):
-        last = nxt is None
-        if isinstance(part, int):
-            if not isinstance(node, list) or part >= len(node):
-                size = f"an array of {len(node)} items" if isinstance(node, list) else describe(node)
-                raise ScenarioError(f"{source} (--set {text})", _join(path, part), "an existing array index",
-                                    size)
-        elif not isinstance(node, dict):
-            raise ScenarioError(f"{source} (--set {text})", path, "a table to set a key in", describe(node))
-        if last:
-            node[part] = value
-        else:
-            if isinstance(node, dict) and part not in node:
-                node[part] = [] if isinstance(nxt, int) else {}
-            node = node[part]
-        path = _join(path, part)
+    keypath.assign(raw, parts, value, f"{source} (--set {_short(text)})")
     return key
 
 
@@ -396,7 +324,7 @@ def load_scenario(path, overrides=()) -> Scenario:
     raw = read_toml(path, "scenario file (.toml)")
     where = {}
     for text in overrides:
-        where[apply_override(raw, text, src)] = text
+        where[apply_override(raw, text, src)] = f"--set {_short(text)}"
     return scenario_from_dict(raw, src, where)
 
 
@@ -404,9 +332,8 @@ def scenario_to_dict(sc: Scenario) -> dict:
     """The resolved scenario as plain TOML/JSON-able data; ``scenario_from_dict`` of it gives ``sc`` back."""
 
     def plain(obj, skip=()):
-        if isinstance(obj, Signal):
-            return {f.name: getattr(obj, f.name) for f in fields(obj)
-                    if f.init and not f.name.startswith("_") and f.name not in SIGNAL_DERIVED}
+        if isinstance(obj, Signal):  # the keys its kind uses (the loader refuses the others)
+            return {"kind": obj.kind, **{k: getattr(obj, k) for k in KEYS_BY_KIND[obj.kind]}}
         if is_dataclass(obj):
             skip = skip + (SIGNAL_DERIVED if isinstance(obj, SensorSpec) else ())
             return {f.name: plain(getattr(obj, f.name)) for f in fields(obj)

@@ -24,40 +24,15 @@ optional ``check`` (value -> None when fine, else a text saying what is allowed)
 
 from __future__ import annotations
 
-import math
 from dataclasses import MISSING, dataclass, field, make_dataclass
 
-from ftstab_mj.control.law import (LAWS, Law, law_class, non_negative, on_register, one_of, open_unit_interval,
-                                   positive, scenario_params)
+from ftstab_mj.control.law import LAWS, Law, law_class, on_register, scenario_params
 from ftstab_mj.control.laws.paper import COMPUTED, bound
 from ftstab_mj.disturbances import Signal
 from ftstab_mj.records import MetricSettings
+from ftstab_mj.validate import fraction, identifier, non_negative, one_line, one_of, positive, state_limit, time_step
 
 INTEGRATORS = ("euler", "implicitfast", "rk4")
-
-
-# -- field checks: value -> None if allowed, else the text of what is allowed --------------------
-def time_step(v):
-    # 1e-7 s is 10 million steps per simulated second; below it a run is an error, not a study.
-    return None if v >= 1e-7 else "a time step >= 1e-7 s"
-
-
-def state_limit(v):
-    # MuJoCo resets a state beyond 1e10 on its own (a warning, zeros): our limit must fire first.
-    return None if 0 < v <= 1e9 else "a number in (0, 1e9] (MuJoCo resets states beyond 1e10)"
-
-
-def fraction(v):
-    return None if 0 < v <= 1 else "a number in (0, 1]"
-
-
-def identifier(v):
-    ok = v != "" and all(c.isalnum() or c in "_-" for c in v)
-    return None if ok else "a non-empty name of letters, digits, '_' and '-' (it names the log files)"
-
-
-def one_line(v):
-    return None if v.strip() and "\n" not in v else "one non-empty line"
 
 
 def meta(doc, check=None):
@@ -272,8 +247,3 @@ EXTERNAL_CHECKS = {
 # Fields of Signal and SensorSpec that a scenario does not set: the seed is derived from Scenario.seed.
 SIGNAL_DERIVED = ("seed",)
 
-
-def period_is_multiple(period: float, step: float) -> bool:
-    """True when period / step is an integer (to 1e-9 relative), as MuJoCo can only hold u over whole steps."""
-    n = round(period / step)
-    return n >= 1 and math.isclose(n * step, period, rel_tol=1e-9, abs_tol=0.0)

@@ -23,10 +23,16 @@ def shipped_scenarios() -> list[tuple[str, Path, str]]:
     return rows
 
 
-def find_scenario(arg: str) -> Path:
-    """``arg`` as a path if it names an existing file or looks like one, else scenarios/<arg>.toml."""
+def find_scenario(arg: str, folder: Path = SCENARIO_DIR) -> Path:
+    """``arg`` as a path if it names an existing file or looks like one, else scenarios/<arg>.toml
+    (``folder``/<arg>.toml)."""
     path = Path(arg)
     if path.exists() or path.suffix or "/" in arg:
         return path
-    shipped = SCENARIO_DIR / f"{arg}.toml"
+    shipped = folder / f"{arg}.toml"
     return shipped if shipped.exists() else path
+
+
+def find_sweep(arg: str) -> Path:
+    """``arg`` as a path, else the shipped sweep scenarios/sweeps/<arg>.toml (as ``ftstab run`` finds a scenario)."""
+    return find_scenario(arg, SCENARIO_DIR / "sweeps")

@@ -21,6 +21,7 @@ import numpy as np
 
 from ftstab_mj.errors import SweepError
 from ftstab_mj.sweep.spec import Axis, Draw, GridParam, Sweep
+from ftstab_mj.validate import MAX_SWEEP_ROWS
 
 SIGNIFICANT_DIGITS = 12  # computed grid values are rounded so 0.1 + 0.2 reads 0.3 in the table
 
@@ -75,6 +76,10 @@ def grid_points(sweep: Sweep) -> list[tuple[tuple[str, object], ...]]:
         combos = zip(*axes)
     else:
         combos = itertools.product(*axes)
+    points = min(len(a) for a in axes) if sweep.combine == "zip" else math.prod(len(a) for a in axes)
+    if points * sweep.samples > MAX_SWEEP_ROWS:
+        raise SweepError(sweep.source, "grid", f"at most {MAX_SWEEP_ROWS} runs (grid points x samples)",
+                         f"{points} grid points x {sweep.samples} samples")
     return [tuple(pair for point in combo for pair in point) for combo in combos]
 
 

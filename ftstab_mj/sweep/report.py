@@ -19,9 +19,10 @@ from pathlib import Path
 
 import numpy as np
 
+from ftstab_mj import keypath
 from ftstab_mj.errors import SweepError
 from ftstab_mj.records import COMPLETED
-from ftstab_mj.sweep.spec import PlotSpec, Sweep, key_label
+from ftstab_mj.sweep.spec import PlotSpec, Sweep
 from ftstab_mj.sweep.table import read_table
 
 
@@ -64,8 +65,8 @@ def plot_one(spec: PlotSpec, table: dict, sweep: Sweep, where: str, path: Path) 
     from matplotlib.figure import Figure
     from matplotlib.ticker import NullFormatter
 
-    xs, ys = _column(table, spec.x, sweep, key_label(where, "x")), _column(table, spec.y, sweep, key_label(where, "y"))
-    by = _column(table, spec.by, sweep, key_label(where, "by")) if spec.by else [None] * len(xs)
+    xs, ys = _column(table, spec.x, sweep, keypath.join(where, "x")), _column(table, spec.y, sweep, keypath.join(where, "y"))
+    by = _column(table, spec.by, sweep, keypath.join(where, "by")) if spec.by else [None] * len(xs)
     status = table["status"]
 
     def usable(v, log):
@@ -121,6 +122,6 @@ def make_report(sweep: Sweep, table_path, out_dir) -> tuple[list[Path], list[Fit
     paths, fits = [], []
     for i, spec in enumerate(sweep.plots):
         path = out / f"{sweep.name}_{i}_{_slug(spec.y)}_vs_{_slug(spec.x)}.png"
-        fits += plot_one(spec, table, sweep, key_label("report.plot", i), path)
+        fits += plot_one(spec, table, sweep, keypath.join("report.plot", i), path)
         paths.append(path)
     return paths, fits

@@ -1,65 +1,54 @@
-"""A sweep row as a scenario run: the base scenario + the row's overrides, run like ``ftstab run``.
+"""A sweep row as a scenario run: the base scenario + the row's values, run like ``ftstab run``.
 
-The row's (key path, value) pairs go through the scenario loader's own ``--set`` machinery
-(:func:`ftstab_mj.scenario.apply_override` on the raw TOML data, then the full validation), so a
-varied parameter gets exactly the checks of the file, and a bad combination fails that row with the
-loader's one-line message. Metrics are those of ``ftstab run`` (ftstab_mj.metrics.compute_metrics).
+The row's (key path, value) pairs are set as typed values on the raw data of the base scenario
+(:func:`ftstab_mj.scenario.loader.scenario_with`: no TOML text in between), then the whole scenario is
+validated as a file is, so a varied parameter gets exactly the checks of the file. A table value
+replaces the table at its path: a grid over ``loops.cart.controller`` with whole controller tables
+switches laws cleanly (each table holds its own law's parameters only).
+
+Every row is validated by :func:`prepare` before anything runs: a bad combination is bad input
+(SweepError, exit 2), never a failed row. Metrics are those of ``ftstab run``.
 """
 
 from __future__ import annotations
 
-import copy
-import json
 from dataclasses import dataclass
 from pathlib import Path
 
+from ftstab_mj import keypath
 from ftstab_mj.errors import ScenarioError, SweepError
 from ftstab_mj.records import COMPLETED, INTERRUPTED
-from ftstab_mj.scenario import apply_override, scenario_from_dict, scenario_to_dict
-from ftstab_mj.scenario.loader import parse_override
-from ftstab_mj.sweep.expand import draw_value, grid_values
-from ftstab_mj.sweep.spec import Sweep, key_label
-from ftstab_mj.tomlfile import read_toml
+from ftstab_mj.scenario.loader import apply_override, scenario_from_dict, scenario_with
+from ftstab_mj.sweep.spec import Sweep
+from ftstab_mj.tomlfile import read_toml, value_text
 
 
-def toml_literal(value) -> str:
-    """``value`` (bool, int, float, str, list, dict) written as a TOML value, for a ``--set`` text."""
-    if isinstance(value, bool):
-        return "true" if value else "false"
-    if isinstance(value, (int, float)):
-        return repr(value)  # repr of a float is a valid TOML float (1e-05, inf, nan included)
-    if isinstance(value, str):
-        return json.dumps(value)  # a TOML basic string
-    if isinstance(value, (list, tuple)):
-        return "[" + ", ".join(toml_literal(v) for v in value) + "]"
-    if isinstance(value, dict):
-        return "{" + ", ".join(f"{json.dumps(k)} = {toml_literal(v)}" for k, v in value.items()) + "}"
-    raise TypeError(f"no TOML form for {value!r}")  # a value of the sweep file is always one of the above
+def row_notes(index: int, params) -> dict[str, str]:
+    """{key path: "row 3: sim.period = 0.002"}: what an error names after the sweep file."""
+    return {path: f"row {index}: {path} = {_short(value_text(value))}" for path, value in params}
 
 
-def override_text(path: str, value) -> str:
-    return f"{path}={toml_literal(value)}"
+def _short(text: str) -> str:
+    return text if len(text) <= 60 else text[:57] + "..."
 
 
 @dataclass(frozen=True)
 class ScenarioTask:
     """Runs one row: ``base`` (raw TOML data of the base scenario, fixed overrides applied) + the row's
-    overrides. Picklable. ``logs``: directory for each run's ``<row>.mcap`` and ``<row>.rrd``, or None."""
+    values. Picklable. ``logs``: directory for each run's ``<row>.mcap`` and ``<row>.rrd``, or None."""
 
     base: dict
     source: str  # the sweep file, prefix of every error
     logs: str | None = None
 
+    def scenario(self, index: int, params):
+        """The validated scenario of row ``index``; ScenarioError naming the sweep file and the row."""
+        return scenario_with(self.base, params, self.source, row_notes(index, params))
+
     def __call__(self, index: int, params) -> dict:
         from ftstab_mj.scenario.run import run_scenario
 
-        raw = copy.deepcopy(self.base)
-        where = {}
-        src = f"{self.source} (row {index})"
-        for path, value in params:
-            text = override_text(path, value)
-            where[apply_override(raw, text, src)] = text
-        sc = scenario_from_dict(raw, src, where)
+        sc = self.scenario(index, params)
         sinks = ()
         if self.logs:
             from ftstab_mj.logs import McapSink, RerunSink
@@ -74,51 +63,27 @@ class ScenarioTask:
         return {"status": status, "error": "" if status == COMPLETED else run.result.message, "metrics": run.metrics}
 
 
-def _has_path(data, parts) -> bool:
-    """Whether the key path (parts of parse_override) exists in ``data``."""
-    node = data
-    for part in parts:
-        if isinstance(part, int):
-            if not isinstance(node, list) or part >= len(node):
-                return False
-        elif not isinstance(node, dict) or part not in node:
-            return False
-        node = node[part]
-    return True
-
-
-def _unknown_key(raw: dict, path: str, value, source: str) -> bool:
-    """Whether setting ``path`` (absent from the resolved base) is refused by the loader as an unknown
-    key (a typo). A key the schema knows but the base leaves out (an optional field) is fine."""
-    trial = copy.deepcopy(raw)
-    text = override_text(path, value)
-    apply_override(trial, text, source)
-    try:
-        scenario_from_dict(trial, source, {path: text})
-    except ScenarioError as exc:
-        return exc.path == path and exc.found.startswith("unknown key")
-    return False
-
-
-def prepare(sweep: Sweep, overrides=(), logs_dir=None) -> tuple[ScenarioTask, dict]:
+def prepare(sweep: Sweep, rows, overrides=(), logs_dir=None) -> tuple[ScenarioTask, dict]:
     """The task of every row and the identity of the sweep (the base every run starts from).
 
-    Applies the sweep's [set] then ``overrides`` (the command line's --set texts) to the base
-    scenario and validates it: an invalid base is an error before any run. Checks that every varied
-    key path is in the resolved base or is a key the schema knows (a typo would fail every run).
+    Sets the sweep's [set] values then ``overrides`` (the command line's --set texts) on the base
+    scenario and validates it (ScenarioError naming the base file), then validates every row of
+    ``rows`` (expand.Row; SweepError naming the sweep file and the row): all before any run or file.
     """
     src = str(sweep.scenario)
     raw = read_toml(sweep.scenario, "scenario file (.toml)")
-    where = {}
-    for text in [override_text(p, v) for p, v in sweep.set] + list(overrides):
-        where[apply_override(raw, text, src)] = text
-    resolved = scenario_to_dict(scenario_from_dict(raw, src, where))
-    varied = [(a.label(p.path), p.path) for a in sweep.axes for p in a.params]
-    first = {p.path: grid_values(p)[0] for a in sweep.axes for p in a.params}
-    first.update({d.path: draw_value(d, sweep.seed, 0) for d in sweep.draws})
-    for label, path in varied + [(key_label("draw", d.path), d.path) for d in sweep.draws]:
-        parts, _, _ = parse_override(f"{path}=0", sweep.source)
-        if not _has_path(resolved, parts) and _unknown_key(raw, path, first[path], src):
-            raise SweepError(sweep.source, label,
-                             f"a key path of the base scenario {sweep.scenario.name}", repr(path))
-    return ScenarioTask(raw, sweep.source, None if logs_dir is None else str(logs_dir)), {"base": raw}
+    notes = {}
+    for path, value in sweep.set:
+        note = f"{sweep.source} [set]: {path} = {_short(value_text(value))}"
+        keypath.assign(raw, keypath.parse(path), value, f"{src} ({note})")
+        notes[path] = note
+    for text in overrides:
+        notes[apply_override(raw, text, src)] = f"--set {text}"
+    scenario_from_dict(raw, src, notes)
+    task = ScenarioTask(raw, sweep.source, None if logs_dir is None else str(logs_dir))
+    for row in rows:
+        try:
+            task.scenario(row.index, row.params)
+        except ScenarioError as exc:
+            raise SweepError(exc.source, exc.path, exc.expected, exc.found) from None
+    return task, {"base": raw}

@@ -41,15 +41,14 @@ The expansion into runs is in :mod:`ftstab_mj.sweep.expand`.
 
 from __future__ import annotations
 
-import math
 import os
 from dataclasses import dataclass
 from pathlib import Path
 
-from ftstab_mj.errors import ScenarioError, SweepError
-from ftstab_mj.scenario.loader import describe, parse_override
-from ftstab_mj.scenario.schema import identifier, one_line
+from ftstab_mj import keypath
+from ftstab_mj.errors import SweepError
 from ftstab_mj.tomlfile import read_toml
+from ftstab_mj.validate import MAX_SWEEP_ROWS, Reader, describe, identifier, one_line
 
 COMBINE = ("product", "zip")
 GRID_KINDS = ("range", "linspace", "logspace")  # besides a plain list of values
@@ -80,7 +79,7 @@ class Axis:
 
     def label(self, path: str) -> str:
         """Where ``path`` is varied in the sweep file: grid."sim.period", or grid.<group>."plant.model"."""
-        return key_label(key_label("grid", self.name), path) if self.group else key_label("grid", path)
+        return keypath.join(keypath.join("grid", self.name), path) if self.group else keypath.join("grid", path)
 
 
 @dataclass(frozen=True)
@@ -127,65 +126,13 @@ class Sweep:
     plots: tuple[PlotSpec, ...] = ()
 
 
-def key_label(path: str, key) -> str:
-    """Key path inside the sweep file; keys that hold dots are quoted as in TOML."""
-    if isinstance(key, int):
-        return f"{path}[{key}]"
-    k = f'"{key}"' if not key.replace("_", "").replace("-", "").isalnum() else key
-    return f"{path}.{k}" if path else k
-
-
-class _Reader:
+class _Reader(Reader):
     def __init__(self, source: str):
-        self.source = source
-
-    def error(self, path: str, expected: str, found: str) -> SweepError:
-        return SweepError(self.source, path or "(top level)", expected, found)
-
-    def table(self, value, path, keys: tuple[str, ...], required: tuple[str, ...] = ()) -> dict:
-        if not isinstance(value, dict):
-            raise self.error(path, "a table", describe(value))
-        for k in value:
-            if k not in keys:
-                raise self.error(key_label(path, k), "one of the keys " + ", ".join(keys), f"unknown key {k!r}")
-        for k in required:
-            if k not in value:
-                raise self.error(key_label(path, k), "a value", "nothing: the key is required")
-        return value
-
-    def number(self, value, path) -> float:
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-            raise self.error(path, "a finite number", describe(value))
-        return value
-
-    def integer(self, value, path, low: int) -> int:
-        if isinstance(value, bool) or not isinstance(value, int) or value < low:
-            raise self.error(path, f"an integer >= {low}", describe(value))
-        return value
-
-    def string(self, value, path, check=None) -> str:
-        if not isinstance(value, str):
-            raise self.error(path, "a string", describe(value))
-        allowed = check(value) if check else None
-        if allowed:
-            raise self.error(path, allowed, describe(value))
-        return value
-
-    def boolean(self, value, path) -> bool:
-        if not isinstance(value, bool):
-            raise self.error(path, "true or false", describe(value))
-        return value
-
-    def numbers(self, value, path, n: int) -> tuple:
-        if not isinstance(value, list) or len(value) != n:
-            raise self.error(path, f"an array of {n} numbers", describe(value))
-        return tuple(self.number(v, key_label(path, i)) for i, v in enumerate(value))
+        super().__init__(source, error_cls=SweepError)
 
     def key_path(self, key: str, path: str) -> str:
-        try:
-            parse_override(f"{key}=0", self.source)
-        except ScenarioError:
-            raise self.error(path, "a scenario key path like sim.period or loops.cart.z0[0]", repr(key)) from None
+        if keypath.parse(key) is None:
+            raise self.error(path, "a scenario key path like sim.period or loops.cart.z0[0]", repr(key))
         return key
 
     # -- [grid] ---------------------------------------------------------------------------------
@@ -204,16 +151,19 @@ class _Reader:
         kind = kinds[0]
         if kind == "range":
             self.table(value, path, ("range",))
-            start, stop, step = self.numbers(value["range"], key_label(path, "range"), 3)
+            start, stop, step = self.numbers(value["range"], keypath.join(path, "range"), 3)
             if step == 0 or (stop - start) / step < 0:
-                raise self.error(key_label(path, "range"), "a step that goes from start towards stop",
+                raise self.error(keypath.join(path, "range"), "a step that goes from start towards stop",
                                  f"start {start:g}, stop {stop:g}, step {step:g}")
+            if (stop - start) / step + 1 > MAX_SWEEP_ROWS:
+                raise self.error(keypath.join(path, "range"), f"at most {MAX_SWEEP_ROWS} values (a sweep's limit "
+                                 "on runs)", f"{(stop - start) / step + 1:.3g} values")
             return GridParam(key, kind, (start, stop, step))
         self.table(value, path, (kind, "num"), required=(kind, "num"))
-        start, stop = self.numbers(value[kind], key_label(path, kind), 2)
-        num = self.integer(value["num"], key_label(path, "num"), 1)
+        start, stop = self.numbers(value[kind], keypath.join(path, kind), 2)
+        num = self.integer(value["num"], keypath.join(path, "num"), 1, MAX_SWEEP_ROWS)
         if kind == "logspace" and not (start > 0 and stop > 0):
-            raise self.error(key_label(path, kind), "two end values > 0 (geometric spacing)", describe(value[kind]))
+            raise self.error(keypath.join(path, kind), "two end values > 0 (geometric spacing)", describe(value[kind]))
         return GridParam(key, kind, (start, stop), num)
 
     def grid(self, value, path) -> tuple[Axis, ...]:
@@ -221,11 +171,11 @@ class _Reader:
             raise self.error(path, "a table of key path = values", describe(value))
         axes = []
         for key, body in value.items():
-            p = key_label(path, key)
+            p = keypath.join(path, key)
             if isinstance(body, dict) and body and not set(body) & set(GRID_KINDS + ("num",)):  # a group
                 if not key.replace("_", "").replace("-", "").isalnum():
                     raise self.error(p, "a group name of letters, digits, '_' and '-'", repr(key))
-                params = tuple(self.grid_param(k, v, key_label(p, k)) for k, v in body.items())
+                params = tuple(self.grid_param(k, v, keypath.join(p, k)) for k, v in body.items())
                 axes.append(Axis(key, params, group=True))
             else:
                 axes.append(Axis(key, (self.grid_param(key, body, p),)))
@@ -238,7 +188,7 @@ class _Reader:
             raise self.error(path, "a table with one of " + ", ".join(f"{d} = [...]" for d in DISTRIBUTIONS),
                              describe(value))
         (dist, args), = value.items()
-        p = key_label(path, dist)
+        p = keypath.join(path, dist)
         if dist == "choice":
             if not isinstance(args, list) or not args:
                 raise self.error(p, "a non-empty array of values", describe(args))
@@ -246,17 +196,17 @@ class _Reader:
         if dist == "integers":
             if not isinstance(args, list) or len(args) != 2:
                 raise self.error(p, "an array of 2 integers [low, high] (both included)", describe(args))
-            lo, hi = (self.integer(v, key_label(p, i), -(2 ** 63)) for i, v in enumerate(args))
+            lo, hi = (self.integer(v, keypath.join(p, i), -(2 ** 63)) for i, v in enumerate(args))
             if hi < lo:
                 raise self.error(p, "low <= high", describe(args))
             return Draw(key, dist, (lo, hi))
         a, b = self.numbers(args, p, 2)
         if dist == "normal" and b < 0:
-            raise self.error(key_label(p, 1), "a standard deviation >= 0", describe(b))
+            raise self.error(keypath.join(p, 1), "a standard deviation >= 0", describe(b))
         if dist in ("uniform", "loguniform") and b < a:
             raise self.error(p, "low <= high", describe(args))
         if dist == "loguniform" and a <= 0:
-            raise self.error(key_label(p, 0), "a number > 0 (log-uniform)", describe(a))
+            raise self.error(keypath.join(p, 0), "a number > 0 (log-uniform)", describe(a))
         return Draw(key, dist, (a, b))
 
     # -- [report] -------------------------------------------------------------------------------
@@ -264,17 +214,17 @@ class _Reader:
         self.table(value, path, ("plot",))
         plots = value.get("plot", [])
         if not isinstance(plots, list):
-            raise self.error(key_label(path, "plot"), "an array of tables [[report.plot]]", describe(plots))
+            raise self.error(keypath.join(path, "plot"), "an array of tables [[report.plot]]", describe(plots))
         out = []
         names = tuple(PlotSpec.__dataclass_fields__)
         for i, body in enumerate(plots):
-            p = key_label(key_label(path, "plot"), i)
+            p = keypath.join(keypath.join(path, "plot"), i)
             self.table(body, p, names, required=("x", "y"))
-            kw = {k: (self.boolean(v, key_label(p, k)) if k in ("logx", "logy", "fit") else self.string(v, key_label(p, k)))
+            kw = {k: (self.boolean(v, keypath.join(p, k)) if k in ("logx", "logy", "fit") else self.string(v, keypath.join(p, k)))
                   for k, v in body.items()}
             spec = PlotSpec(**kw)
             if spec.fit and not (spec.logx and spec.logy):
-                raise self.error(key_label(p, "fit"), "logx = true and logy = true (the fit is a log-log slope)",
+                raise self.error(keypath.join(p, "fit"), "logx = true and logy = true (the fit is a log-log slope)",
                                  f"logx = {str(spec.logx).lower()}, logy = {str(spec.logy).lower()}")
             out.append(spec)
         return tuple(out)
@@ -288,24 +238,24 @@ class _Reader:
         if not scenario.is_file():
             raise self.error("scenario", "an existing scenario file, relative to the sweep file",
                              f"{raw['scenario']!r} (no such file: {scenario})")
-        seed = self.integer(raw.get("seed", 0), "seed", 0)
+        seed = self.integer(raw.get("seed", 0), "seed", 0)  # SeedSequence takes any integer >= 0
         combine = self.string(raw.get("combine", "product"), "combine",
                               lambda v: None if v in COMBINE else "one of " + ", ".join(map(repr, COMBINE)))
-        samples = self.integer(raw.get("samples", 1), "samples", 1)
+        samples = self.integer(raw.get("samples", 1), "samples", 1, MAX_SWEEP_ROWS)
         fixed = raw.get("set", {})
         if not isinstance(fixed, dict):
             raise self.error("set", "a table of key path = value", describe(fixed))
-        fixed = tuple((self.key_path(k, key_label("set", k)), v) for k, v in fixed.items())
+        fixed = tuple((self.key_path(k, keypath.join("set", k)), v) for k, v in fixed.items())
         axes = self.grid(raw.get("grid", {}), "grid")
         draws_raw = raw.get("draw", {})
         if not isinstance(draws_raw, dict):
             raise self.error("draw", "a table of key path = {distribution = [...]}", describe(draws_raw))
-        draws = tuple(self.draw(k, v, key_label("draw", k)) for k, v in draws_raw.items())
+        draws = tuple(self.draw(k, v, keypath.join("draw", k)) for k, v in draws_raw.items())
         if samples > 1 and not draws:
             raise self.error("samples", "1 when there is no [draw] table (identical runs otherwise)", str(samples))
         seen: dict[str, str] = {}
         varied = [(a.label(p.path), p.path) for a in axes for p in a.params]
-        for where, path in varied + [(key_label("draw", d.path), d.path) for d in draws]:
+        for where, path in varied + [(keypath.join("draw", d.path), d.path) for d in draws]:
             if path in seen:
                 raise self.error(where, "each key path varied once", f"{path!r}, also varied at {seen[path]}")
             seen[path] = where

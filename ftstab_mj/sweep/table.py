@@ -21,21 +21,10 @@ from pathlib import Path
 
 import pyarrow as pa
 
+from ftstab_mj.keypath import flatten
+
 FORMATS = ("parquet", "csv")
 VARYING_COLUMNS = ("elapsed_s",)  # everything else is a function of the sweep file only
-
-
-def flatten(value, prefix: str, out: dict) -> dict:
-    """Spread nested dicts/lists into ``out`` as {"a.b[0]": scalar}; returns ``out``."""
-    if isinstance(value, dict):
-        for k, v in value.items():
-            flatten(v, f"{prefix}.{k}" if prefix else str(k), out)
-    elif isinstance(value, (list, tuple)):
-        for i, v in enumerate(value):
-            flatten(v, f"{prefix}[{i}]", out)
-    else:
-        out[prefix] = value
-    return out
 
 
 def make_row(index: int, sample: int, params, result: dict) -> dict:
