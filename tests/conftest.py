@@ -69,6 +69,24 @@ def run_cli(*args, cwd=None, timeout=600):
                           text=True, cwd=cwd or ROOT, env=env, timeout=timeout)
 
 
+def run_args(tmp_path, base, edit, sets) -> tuple[Path, Path, list[str]]:
+    """(scenario path, output dir, ``run`` arguments) for a case of a malformed-input table: ``base``
+    (a shipped scenario, or None for a missing file) with ``edit`` = (old, new) replaced in its text
+    (None: unchanged), written to tmp_path/bad.toml, and one ``--set`` per text of ``sets``."""
+    path = tmp_path / "bad.toml"
+    if base is not None:
+        text = base.read_text()
+        if edit is not None:
+            assert edit[0] in text, "the edit must apply to the shipped file"
+            text = text.replace(edit[0], edit[1])
+        path.write_text(text)
+    out = tmp_path / "out"
+    args = ["run", str(path), "--out", str(out)]
+    for s in sets:
+        args += ["--set", s]
+    return path, out, args
+
+
 def rrd_rows(path, entity: str) -> int:
     """Rows logged to ``entity`` in an .rrd, read with Rerun's own decoder (``rerun rrd print``,
     the one the viewer uses), which reads a file cut by SIGKILL as far as it goes. The Python

@@ -8,7 +8,7 @@ traceback and leave no log (the output directory is not even created).
 import json
 
 import pytest
-from conftest import ROOT, run_cli
+from conftest import ROOT, run_args, run_cli
 
 from ftstab_mj.errors import ScenarioError
 from ftstab_mj.scenario import (apply_override, load_scenario, scenario_from_dict, scenario_to_dict,
@@ -90,17 +90,7 @@ MALFORMED = [
 @pytest.mark.parametrize("case", MALFORMED, ids=[c[0] for c in MALFORMED])
 def test_malformed_input_exit_2_one_line_key_path_no_log(case, tmp_path):
     _, base, edit, sets, key_path = case
-    path = tmp_path / "bad.toml"
-    if base is not None:
-        text = base.read_text()
-        if edit is not None:
-            assert edit[0] in text, "the edit must apply to the shipped file"
-            text = text.replace(edit[0], edit[1])
-        path.write_text(text)
-    out = tmp_path / "out"
-    args = ["run", path, "--out", out]
-    for s in sets:
-        args += ["--set", s]
+    path, out, args = run_args(tmp_path, base, edit, sets)
     proc = run_cli(*args)
     assert proc.returncode == 2, proc.stderr
     lines = proc.stderr.strip().splitlines()

@@ -206,3 +206,27 @@ fit = true
     assert res.returncode == 0, res.stderr
     slope = float(re.search(r"log-log slope in \S+, all runs: (\S+) \(4 points\)", res.stdout).group(1))
     assert abs(slope - 1 / (1 - 0.2)) < 0.05, slope
+
+
+def test_a_grid_over_whole_controller_tables_switches_laws_cleanly(tmp_path):
+    """A table value replaces the base's table: the adaptive row keeps none of the robust base's
+    phibar/gamma_m (a grid over `law` alone fails every row for that reason). Validation only."""
+    from ftstab_mj.sweep.runner import prepare
+
+    path = tmp_path / "laws.toml"
+    path.write_text(f'''name = "laws"
+description = "robust against adaptive"
+scenario = "{ROOT / "scenarios" / "cart_r2_robust.toml"}"
+[grid]
+"loops.cart.controller" = [{{law = "robust", k = -0.2, gains = [1, 2], phibar = 1, gamma_m = 0.5}},
+                           {{law = "adaptive", k = -0.2, gains = [1, 2], kappa = 0.5, delta = 0.1, rate = 2, eta = 0.5, eps = 1e-3}}]
+''')
+    sweep = load_sweep(path)
+    rows = expand(sweep)
+    task, _ = prepare(sweep, rows)
+    robust, adaptive = (task.scenario(r.index, r.params).loops[0].controller for r in rows)
+    assert robust.law_params() == {"phibar": 1.0, "gamma_m": 0.5}
+    assert adaptive.law == "adaptive" and adaptive.phibar is None and adaptive.gamma_m is None
+    assert adaptive.law_params() == {"kappa": 0.5, "delta": 0.1, "rate": 2.0, "eta": 0.5, "eps": 1e-3}
+    # the value is set typed, not printed and parsed: the base is untouched by a row
+    assert task.base["loops"]["cart"]["controller"]["law"] == "robust"

@@ -211,6 +211,9 @@ def _check_plant(sc: Scenario, rd: _Reader):
     except ParameterError as exc:  # names "model" or "params.<key>"
         key = exc.name.removeprefix("params.")
         raise rd.error(f"plant.{key}", exc.allowed, describe(exc.given)) from None
+    except ValueError as exc:  # MuJoCo's compiler refused the model these parameters make
+        raise rd.error("plant", "parameters MuJoCo can compile a model from",
+                       f"MuJoCo: {str(exc).removeprefix('Error: ').splitlines()[0]}") from None
     names = [lp.name for lp in sc.loops]
     if sorted(names) != sorted(plant.loop_names):
         raise rd.error("loops", f"one table per loop of model {sc.plant.model!r}: "

@@ -1,0 +1,97 @@
+"""Hostile input (issue 17): each class the reliability review found is refused in one line, exit 2.
+
+Through the command's own ``main`` (in process: the same code as ``ftstab run`` without a process
+start per case). Every case: exit 2, one line on stderr naming the file, the key path, what is
+allowed and what was found, no traceback, and no output directory (nothing written).
+"""
+
+import pytest
+
+from conftest import ROOT, run_args
+from ftstab_mj.cli import main
+from ftstab_mj.disturbances import Signal
+from ftstab_mj.scenario import load_scenario
+
+R2 = ROOT / "scenarios" / "cart_r2_robust.toml"
+R3 = ROOT / "scenarios" / "cart_r3_robust.toml"
+ARM = ROOT / "scenarios" / "arm_robust.toml"
+DEEP = "[" * 500 + "]" * 500
+
+# (id, scenario, edit of the file text (old, new) or None, --set texts, key path, texts the line must hold)
+HOSTILE = [
+    ("nested-500-in-file", R2, ("mass = 1.0 ", f"mass = {DEEP} "), [], "(TOML syntax)",
+     ["nested at most 16 deep"]),
+    ("nested-500-in-set", R2, None, [f"plant.mass={DEEP}"], "plant.mass", ["nested at most 16 deep"]),
+    ("int-beyond-64-bits", R2, None, [f"plant.mass={10 ** 20}"], "plant.mass",
+     ["integer of 64 bits", "100000000000000000000 (an integer)"]),
+    ("seed-2^64", R2, None, [f"seed={2 ** 64}"], "seed", ["integer of 64 bits", "18446744073709551616"]),
+    ("int-5000-digits", R2, ("mass = 1.0 ", "mass = 1" + "0" * 5000 + " "), [], "(TOML syntax)",
+     ["valid TOML", "Exceeds the limit (4300 digits)"]),
+    ("gain-products-overflow", R3, None, ["loops.cart.controller.gains[1]=1.797e308"],
+     "loops.cart.controller.gains", ["below 1.8e308", "1.797e+308"]),
+    ("name-251-chars", R2, None, ["name=" + "a" * 251], "name", ["at most 200 characters", "255 bytes"]),
+    ("name-not-ascii", R2, None, ["name=caf\u00e9"], "name", ["ASCII letters"]),
+    ("gain-worst-case", R2, None, ['loops.cart.gain={kind="worst_case", offset=1.0}'], "loops.cart.gain.kind",
+     ["depends on time only", "'worst_case' (a string)"]),
+    ("period-1e308", R2, None, ["sim.period=1e308"], "sim.period",
+     ["at most 1e6 physics steps per period", "> 1e308 steps"]),
+    ("period-1e9", R2, None, ["sim.period=1e9", "sim.duration=1e9"], "sim.period",
+     ["at most 1e6 physics steps per period", "1e+12 steps"]),
+    ("duration-1e308-step-1e-7", R2, None, ["sim.duration=1e308", "sim.physics_step=1e-7", "sim.period=1e-7"],
+     "sim.duration", ["at most 1e7 control samples per run", "~1 GB of memory"]),
+    ("duration-1e300", R2, None, ["sim.duration=1e300"], "sim.duration", ["at most 1e7 control samples"]),
+    ("steps-per-run", R2, None, ["sim.duration=9000", "sim.physics_step=1e-6"], "sim.duration",
+     ["at most 1e9 physics steps per run", "about an hour"]),
+    ("random-modes-1e12", R2, None, [f'loops.cart.disturbance={{kind="random", amplitude=0.8, modes={10 ** 12}}}'],
+     "loops.cart.disturbance.modes", ["[1, 10000]", "1000000000000 (an integer)"]),
+    ("arm-grid-100000", ARM, None, ["plant.grid=100000"], "plant.grid", ["[2, 161]", "100000"]),
+    ("arm-grid-5000", ARM, None, ["plant.grid=5000"], "plant.grid", ["[2, 161]", "~8 s"]),
+    ("freq-end-on-sine", R2, None, ["loops.cart.disturbance.freq_end=3"], "loops.cart.disturbance.freq_end",
+     ["only keys that a sine signal uses", "freq_end = 3"]),
+    ("amplitude-on-constant", R2, None, ['loops.cart.gain={kind="constant", offset=1.0, amplitude=0.5}'],
+     "loops.cart.gain.amplitude", ["only keys that a constant signal uses"]),
+    ("freq-beyond-nyquist", R2, None, ["loops.cart.disturbance.freq=600"], "loops.cart.disturbance.freq",
+     ["<= 500 Hz", "alias"]),
+    ("negative-sine-amplitude", R2, None, ["loops.cart.disturbance.amplitude=-1"],
+     "loops.cart.disturbance.amplitude", ["only a step's amplitude is signed"]),
+    ("step-down-through-zero", R2, None, ['loops.cart.gain={kind="step", offset=1.0, amplitude=-1.5}'],
+     "loops.cart.gain", ["gamma(t) > 0 at all times", "-0.5"]),
+]
+
+
+@pytest.mark.parametrize("case", HOSTILE, ids=[c[0] for c in HOSTILE])
+def test_hostile_input_is_one_line_exit_2_and_writes_nothing(case, tmp_path, capsys):
+    _, base, edit, sets, key_path, texts = case
+    path, out, args = run_args(tmp_path, base, edit, sets)
+    code = main(args)
+    err = capsys.readouterr().err
+    assert code == 2, err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in err, err
+    assert lines[0].startswith(f"error: {path}") and f": {key_path}: expected " in lines[0], lines[0]
+    for t in texts:
+        assert t in lines[0], lines[0]
+    assert not out.exists()
+
+
+def test_a_step_may_step_down_an_actuator_losing_half_its_gain():
+    """gamma(t) = 1 until t_step, then 0.5: a signed step amplitude, the bounds the robust law is checked with."""
+    sc = load_scenario(R2, ['loops.cart.gain={kind="step", offset=1.0, amplitude=-0.5, t_step=0.25}'])
+    (lp,) = sc.loops
+    assert lp.gain.bounds() == (0.5, 1.0)
+    assert list(lp.gain([0.0, 0.2499, 0.25, 3.0])) == [1.0, 1.0, 0.5, 0.5]
+    with pytest.raises(ValueError, match="only a step's amplitude is signed"):
+        Signal("sine", 1.0, -0.5)
+
+
+def test_the_limits_hold_exactly_at_their_values():
+    """1e7 samples and 1e6 steps per period are allowed; one more is refused (the limits are the
+    stated numbers, not approximations of them). Loader only: nothing runs."""
+    from ftstab_mj.errors import ScenarioError
+
+    load_scenario(R2, ["sim.duration=10000"])  # 1e7 samples of 1 ms
+    with pytest.raises(ScenarioError, match="at most 1e7 control samples"):
+        load_scenario(R2, ["sim.duration=10000.002"])
+    load_scenario(R2, ["sim.physics_step=1e-6", "sim.period=1.0", "sim.duration=1"])  # 1e6 steps per period
+    with pytest.raises(ScenarioError, match="at most 1e6 physics steps per period"):
+        load_scenario(R2, ["sim.physics_step=1e-6", "sim.period=1.000001", "sim.duration=1.000001"])
