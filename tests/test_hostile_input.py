@@ -95,3 +95,17 @@ def test_the_limits_hold_exactly_at_their_values():
     load_scenario(R2, ["sim.physics_step=1e-6", "sim.period=1.0", "sim.duration=1"])  # 1e6 steps per period
     with pytest.raises(ScenarioError, match="at most 1e6 physics steps per period"):
         load_scenario(R2, ["sim.physics_step=1e-6", "sim.period=1.000001", "sim.duration=1.000001"])
+
+
+def test_theorem3_bounds_of_absurd_but_finite_parameters_are_infinite_not_an_overflow():
+    """Found by the fuzzer: a gain offset of 1.797e308 made the metrics raise OverflowError (Python's
+    float **) after the run. A bound beyond the largest float is reported as infinite."""
+    import math
+
+    from ftstab_mj.control import HongController, certify, theorem3_bounds
+
+    cert = certify(HongController(2, -0.2, (1.0, 2.0)), samples=2000, seed=0)
+    b = theorem3_bounds(cert, 0.1, 1.797e308, 1.0, 1.0, 1.0, 1e-3)
+    assert math.isinf(b.Phibar) and math.isinf(b.Delta) and math.isinf(b.phi_hat_limsup)
+    finite = theorem3_bounds(cert, 0.1, 1.0, 1.0, 1.0, 1.0, 1e-3)  # unchanged for ordinary values
+    assert finite.Phibar == (0.1 + (1.0 * 1.0 - 1.0) ** 2 / 4.0) / 1.0

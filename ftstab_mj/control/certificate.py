@@ -152,11 +152,19 @@ def theorem3_bounds(cert: Certificate, phibar: float, gamma_m: float, kappa: flo
                       ("rate", rate), ("eps", eps)):
         if not (np.isfinite(val) and (val > 0 or (name == "phibar" and val == 0))):
             raise ParameterError(name, "a finite number > 0" + (" (or 0)" if name == "phibar" else ""), val)
-    Phibar = (phibar + (kappa * gamma_m - 1.0) ** 2 / (4.0 * gamma_m * delta)) / gamma_m
-    ap = cert.alpha_prime
-    Delta = (eps ** (1.0 - ap) + cert.c_prime * (1.0 - ap) * gamma_m * Phibar ** 2 / (2.0 * rate)) ** (1.0 / (1.0 - ap))
-    a = cert.alpha
-    # At k = 0 (alpha = 1) V1 decays exponentially, never reaching 0 in finite time: the proof's
-    # last phase has no end, so the bound on phi_hat is infinite.
-    limsup = 2.0 * Phibar + rate * Delta ** (1.0 - a) / (cert.c * (1.0 - a)) if a < 1.0 else float("inf")
-    return Theorem3Bounds(Phibar=float(Phibar), Delta=float(Delta), phi_hat_limsup=float(limsup))
+    # float64 arithmetic: a bound beyond the largest float is infinite (an honest "no finite bound"),
+    # where Python's float ** would raise OverflowError (e.g. a gain offset of 1.8e308); the inputs are
+    # finite, so a NaN can only come from inf / inf of such an overflow and is infinite too
+    phibar, gamma_m, kappa, delta, rate, eps = map(np.float64, (phibar, gamma_m, kappa, delta, rate, eps))
+    with np.errstate(over="ignore", invalid="ignore"):
+        Phibar = (phibar + (kappa * gamma_m - 1.0) ** 2 / (4.0 * gamma_m * delta)) / gamma_m
+        ap = cert.alpha_prime
+        Delta = (eps ** (1.0 - ap) + cert.c_prime * (1.0 - ap) * gamma_m * Phibar ** 2 / (2.0 * rate)) ** (1.0 / (1.0 - ap))
+        a = cert.alpha
+        # At k = 0 (alpha = 1) V1 decays exponentially, never reaching 0 in finite time: the proof's
+        # last phase has no end, so the bound on phi_hat is infinite.
+        limsup = 2.0 * Phibar + rate * Delta ** (1.0 - a) / (cert.c * (1.0 - a)) if a < 1.0 else float("inf")
+    def bound(x):
+        return float(x) if np.isfinite(x) else float("inf")
+
+    return Theorem3Bounds(Phibar=bound(Phibar), Delta=bound(Delta), phi_hat_limsup=bound(limsup))
