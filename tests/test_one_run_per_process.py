@@ -174,6 +174,6 @@ def test_a_sweep_on_a_two_thread_dask_worker_gives_the_serial_table(tmp_path, da
     for name, args in (("serial", ()), ("dask", ("--scheduler", dask_cluster))):
         res = run_cli("sweep", sweep, "--out", tmp_path / name, *args)
         assert res.returncode == 0, res.stderr
-        assert "12/12 runs in the table (8 completed, 4 failed)" in res.stdout, res.stdout
+        assert "12/12 runs in the table (12 completed)" in res.stdout, res.stdout
         tables[name] = results(read_table(tmp_path / name / "small.parquet"))
     assert tables["dask"] == tables["serial"]
