@@ -116,7 +116,7 @@ def _check(sc: Scenario, rd: _Reader) -> Scenario:
         if lp.gain.state_dependent:
             raise rd.error(f"{p}.gain.kind", "a gain signal that depends on time only (worst_case is a "
                            "disturbance: it needs dV1/dz_r)", describe(lp.gain.kind))
-        for role in _SIGNAL_ROLES:
+        for role in ("disturbance", "gain"):
             sig = getattr(lp, role)
             nyquist = 0.5 / sc.sim.physics_step
             for key in ("freq", "freq_end"):

@@ -24,6 +24,7 @@ optional ``check`` (value -> None when fine, else a text saying what is allowed)
 
 from __future__ import annotations
 
+import math
 from dataclasses import MISSING, dataclass, field, make_dataclass
 
 from ftstab_mj.control.law import LAWS, Law, law_class, on_register, scenario_params
