@@ -14,7 +14,7 @@ what one core sustains (the wall-clock rate of an idle machine is that times the
   callback     Simulation.advance with the paper's controller in the (native) control callback,
                one control sample per 1 ms physics step, batches of 1000 samples as simulate()
                uses, vs mj_step(m, d, nstep) of the same compiled model with no callback.
-  full run     simulate() with an MCAP and a Rerun sink writing every sample (100 s, 100,000
+  full run     a recorded run (scenario.run.record) with an MCAP and a Rerun sink writing every sample (100 s, 100,000
                samples), in this process (imports done: no interpreter start-up) vs bare stepping.
   process      `python -m ftstab_mj run scenarios/cart_r2_robust.toml --set sim.duration=100` (both
                logs, metrics) vs `python -c "import mujoco; <load the same MJCF>; mj_step x 100,000"`.
@@ -45,7 +45,7 @@ from ftstab_mj.control import AdaptiveLaw, HongController, RobustLaw  # noqa: E4
 from ftstab_mj.disturbances import Signal  # noqa: E402
 from ftstab_mj.ideal_chain import simulate_chain  # noqa: E402
 from ftstab_mj.plants import make_plant  # noqa: E402
-from ftstab_mj.sim import LoopSpec, Simulation, simulate  # noqa: E402
+from ftstab_mj.sim import LoopSpec, Run, Simulation  # noqa: E402
 
 STEP = 1e-3  # s, physics step and control period
 BATCH = 1000  # samples per Simulation.advance, simulate()'s default batch
@@ -98,11 +98,12 @@ def with_callback(plant, kind: str, r: int, steps: int, use_native) -> float:
 def full_run(plant, kind: str, r: int, steps: int) -> float:
     from ftstab_mj.logs import McapSink, RerunSink
     from ftstab_mj.metrics import compute_metrics
+    from ftstab_mj.scenario.run import record
 
     with tempfile.TemporaryDirectory() as tmp:
         sinks = (McapSink(Path(tmp) / "run.mcap"), RerunSink(Path(tmp) / "run.rrd"))
-        return timed(lambda: simulate(plant, loops(kind, r), steps * STEP, STEP, STEP, sinks=sinks,
-                                      metrics=compute_metrics))
+        return timed(lambda: record(Run(Simulation(plant, loops(kind, r), STEP, STEP), steps * STEP), sinks,
+                                    compute_metrics))
 
 
 def process_pair(steps: int):

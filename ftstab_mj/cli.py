@@ -109,7 +109,7 @@ def cmd_replay(args) -> int:
         failed = True
     if args.verify:
         from ftstab_mj.interrupts import interruption
-        from ftstab_mj.logs.verify import verify_log
+        from ftstab_mj.scenario.run import verify_log
 
         try:
             v = verify_log(log)

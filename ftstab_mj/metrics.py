@@ -22,7 +22,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from ftstab_mj.records import RunInfo
+from ftstab_mj.records import RunInfo, format_table  # noqa: F401 - format_table is part of this API
 
 
 def _num(x):
@@ -339,32 +339,3 @@ def compute_metrics(info: RunInfo, loops: dict, status: str) -> dict:
     per = {lp.name: loop_metrics(info, lp, loops[lp.name]) for lp in info.loops}
     n = max((m["n_samples"] for m in per.values()), default=0)
     return {"status": status, "n_samples": n, "duration": _num(n * info.period), "loops": per}
-
-
-def _fmt(v) -> str:
-    if v is None:
-        return "-"
-    if isinstance(v, bool):
-        return "yes" if v else "no"
-    if isinstance(v, float):
-        return f"{v:.6g}"
-    if isinstance(v, list):
-        return "[" + ", ".join(_fmt(x) for x in v) + "]"
-    return str(v)
-
-
-def format_table(metrics: dict) -> str:
-    """A human-readable table of :func:`compute_metrics`'s result (one block per loop)."""
-    lines = [f"status {metrics['status']}, {metrics['n_samples']} samples, {_fmt(metrics['duration'])} s"]
-    for name, m in metrics["loops"].items():
-        lines.append(f"loop {name} ({m['law']})")
-        for key, val in m.items():
-            if key in ("law", "theorem3"):
-                continue
-            lines.append(f"  {key:<22} {_fmt(val)}")
-        th = m.get("theorem3")
-        if th:
-            lines.append("  theorem 3 (true bounds):")
-            for key, val in th.items():
-                lines.append(f"    {key:<20} {_fmt(val)}")
-    return "\n".join(lines)

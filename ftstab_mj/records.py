@@ -136,3 +136,33 @@ class Sink(Protocol):
     def write(self, batch: SampleBatch) -> None: ...
 
     def close(self, status: str, metrics: dict, message: str = "") -> None: ...
+
+
+# -- the metrics dict as text (the CLI and the Rerun log show it) -----------------------------------
+def _fmt(v) -> str:
+    if v is None:
+        return "-"
+    if isinstance(v, bool):
+        return "yes" if v else "no"
+    if isinstance(v, float):
+        return f"{v:.6g}"
+    if isinstance(v, list):
+        return "[" + ", ".join(_fmt(x) for x in v) + "]"
+    return str(v)
+
+
+def format_table(metrics: dict) -> str:
+    """A human-readable table of a metrics dict (ftstab_mj.metrics.compute_metrics; one block per loop)."""
+    lines = [f"status {metrics['status']}, {metrics['n_samples']} samples, {_fmt(metrics['duration'])} s"]
+    for name, m in metrics["loops"].items():
+        lines.append(f"loop {name} ({m['law']})")
+        for key, val in m.items():
+            if key in ("law", "theorem3"):
+                continue
+            lines.append(f"  {key:<22} {_fmt(val)}")
+        th = m.get("theorem3")
+        if th:
+            lines.append("  theorem 3 (true bounds):")
+            for key, val in th.items():
+                lines.append(f"    {key:<20} {_fmt(val)}")
+    return "\n".join(lines)

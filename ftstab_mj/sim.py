@@ -3,7 +3,11 @@
     plant = make_plant("cart", {"mass": 2.0})
     loops = [LoopSpec("cart", z0=(1.0, 0.0), controller=RobustLaw(hong, phibar=0.5, gamma_m=0.8),
                       disturbance=Signal("sine", amplitude=0.5, freq=1.0), gain=Signal("constant", 1.0))]
-    result = simulate(plant, loops, duration=5.0, period=0.01, physics_step=0.001, sinks=[...])
+    result = simulate(plant, loops, duration=5.0, period=0.01, physics_step=0.001)  # RunResult
+
+The direction is one way: :class:`Simulation` steps the plant and records samples, :class:`Run`
+cuts a run into batches and ends it with a status, ``simulate`` collects them. Sinks and metrics
+belong to whoever drives the run (ftstab_mj.scenario.run.record), never to this module.
 
 Timing. The control period is N physics steps (N integer, checked). Sample k is taken at
 t_k = k * period from the state at the start of the step that opens period k: the run loop sets a
@@ -31,10 +35,10 @@ others) is advanced exactly once per period (``law.advance``, z held) and lives 
 (which also holds qpos, qvel, act, ctrl, qfrc_applied and time) saves the whole run state.
 
 Outcomes. A run ends "completed", "diverged" (NaN or |z| beyond ``divergence_limit`` at a sample,
-a MuJoCo warning), or "interrupted" (Ctrl-C); in every case the sinks get what was recorded and
-are closed with the status, and :class:`RunResult` holds the same arrays. An exception inside the
-callback comes out as :class:`CallbackError` (sinks closed with "failed"). The callback that was
-installed before the run is always put back (:func:`control_callback`).
+a MuJoCo warning), or "interrupted" (Ctrl-C: :meth:`Run.interrupted` keeps the samples of the
+batch cut short); :class:`RunResult` holds every sample. An exception inside the callback comes out
+as :class:`CallbackError`. The callback that was installed before the run is always put back
+(:func:`control_callback`).
 """
 
 from __future__ import annotations
@@ -51,7 +55,7 @@ from ftstab_mj.errors import CallbackError, ParameterError
 from ftstab_mj.loop_stages.pipeline import build_stages, describe_stages
 from ftstab_mj.native import run as native_run
 from ftstab_mj.plants.base import Plant
-from ftstab_mj.records import (COMPLETED, DIVERGED, FAILED, INTERRUPTED, LOOP_FIELDS, LoopInfo,
+from ftstab_mj.records import (COMPLETED, DIVERGED, INTERRUPTED, LOOP_FIELDS, LoopInfo,
                                MetricSettings, RunInfo, SampleBatch)
 from ftstab_mj.scenario.schema import LoopSpec
 from ftstab_mj.validate import whole_steps
@@ -455,80 +459,94 @@ def sample_count(duration: float, period: float) -> int:
     return max(1, int(round(duration / period)))
 
 
+class Run:
+    """One run of a Simulation, batch by batch, in one direction: the run produces samples and ends
+    with a status; whoever drives it (``simulate``, the scenario runner with its sinks) consumes them.
+
+        run = Run(sim, duration=5.0)
+        with sim.installed():
+            while not run.finished:
+                batch = run.step()         # KeyboardInterrupt / an error: batch = run.stop(...)
+        result = run.result()              # RunResult: status, message, info, every sample
+
+    ``info`` (RunInfo) describes the run before the first sample. ``step`` advances one batch and
+    ends the run "completed" after the last one or "diverged" when the simulation stopped;
+    ``stop(status, message)`` ends it early (interrupted, failed) and returns the samples the
+    interrupted batch had recorded. Every batch returned is also kept for :meth:`result`.
+    """
+
+    def __init__(self, sim: Simulation, duration: float, batch_size: int = 1000, scenario_dict: dict | None = None,
+                 metric_settings: MetricSettings | None = None):
+        if isinstance(batch_size, bool) or not isinstance(batch_size, (int, np.integer)) or batch_size < 1:
+            raise ParameterError("batch_size", "an integer >= 1", batch_size)
+        self.sim, self.batch_size = sim, int(batch_size)
+        self.n_total = sample_count(duration, sim.period)
+        self.info = sim.run_info(scenario_dict, metric_settings)
+        self.status: str | None = None  # None while running
+        self.message = ""
+        self.done = 0
+        self._batches: list[SampleBatch] = []
+
+    @property
+    def finished(self) -> bool:
+        return self.status is not None
+
+    def step(self) -> SampleBatch:
+        """The next batch of samples (the callback installed: ``with run.sim.installed()``)."""
+        if self.finished:
+            raise RuntimeError(f"the run has ended ({self.status})")
+        sim = self.sim
+        batch = self._keep(sim.advance(min(self.batch_size, self.n_total - self.done)))
+        if sim.stop_reason:
+            self.status, self.message = DIVERGED, sim.stop_reason
+        elif self.done >= self.n_total:
+            self.status = COMPLETED
+        return batch
+
+    def stop(self, status: str, message: str) -> SampleBatch:
+        """End the run with ``status`` (INTERRUPTED, FAILED); returns the samples recorded since the
+        last batch (those of a batch cut short), empty when there are none."""
+        if not self.finished:
+            self.status, self.message = status, message
+        return self._keep(self.sim.take_batch())
+
+    def interrupted(self) -> SampleBatch:
+        """:meth:`stop` for a Ctrl-C, with the message naming the simulated time it came at."""
+        return self.stop(INTERRUPTED, f"interrupted by the user at t = {self.sim.time:.6g} s")
+
+    def _keep(self, batch: SampleBatch) -> SampleBatch:
+        self._batches.append(batch)
+        self.done += len(batch)
+        return batch
+
+    def result(self) -> RunResult:
+        """Every sample of the finished run, with its status and message."""
+        if not self.finished:
+            raise RuntimeError("the run has not ended: step it until run.finished, or stop it")
+        batches = [b for b in self._batches if len(b)] or [self.sim.take_batch()]
+        loops = {name: {f: np.concatenate([b.loops[name][f] for b in batches]) for f in fields}
+                 for name, fields in batches[0].loops.items()}
+        return RunResult(status=self.status, message=self.message, info=self.info, loops=loops,
+                         body_pos=np.concatenate([b.body_pos for b in batches]),
+                         body_quat=np.concatenate([b.body_quat for b in batches]))
+
+
 def simulate(plant: Plant, loops, duration: float, period: float, physics_step: float, integrator: str = "euler",
-             sinks=(), batch_size: int = 1000, divergence_limit: float = 1e6, scenario_dict: dict | None = None,
-             metric_settings: MetricSettings | None = None, metrics=None, native="auto") -> RunResult:
-    """Run ``loops`` (LoopSpec, one per plant loop) on ``plant`` for ``duration`` seconds.
+             batch_size: int = 1000, divergence_limit: float = 1e6, native="auto") -> RunResult:
+    """Run ``loops`` (LoopSpec, one per plant loop) on ``plant`` for ``duration`` seconds; the samples
+    and the status (completed, diverged or interrupted by Ctrl-C) in a RunResult.
 
     period: control period (s), an integer multiple of physics_step (s); integrator: "euler"
-    (default), "rk4" or "implicitfast". Samples go to every sink (records.Sink) in batches of
-    ``batch_size`` samples. metrics: optional callable (RunInfo, {loop: {field: array}}, status) -> dict
-    (e.g. ftstab_mj.metrics.compute_metrics) whose result is handed to the sinks' close. Returns a RunResult (status completed, diverged or
-    interrupted); raises CallbackError when the controller raised (sinks closed with "failed").
-    native: True | False | "auto": the controller in the C callback or in Python (see Simulation).
+    (default), "rk4" or "implicitfast"; native: True | False | "auto": the controller in the C
+    callback or in Python (see Simulation). Raises CallbackError when the controller raised. To
+    record a run (sinks, metrics), drive a :class:`Run` (ftstab_mj.scenario.run.record).
     """
     sim = Simulation(plant, loops, period, physics_step, integrator, divergence_limit, native)
-    n_total = sample_count(duration, period)
-    if isinstance(batch_size, bool) or not isinstance(batch_size, (int, np.integer)) or batch_size < 1:
-        raise ParameterError("batch_size", "an integer >= 1", batch_size)
-    info = sim.run_info(scenario_dict, metric_settings)
-    batches, opened = [], []
-    status, message = COMPLETED, ""
-
-    def emit(batch):
-        batches.append(batch)
-        if len(batch):
-            for sink in opened:
-                sink.write(batch)
-
-    try:
-        for sink in sinks:
-            sink.open(info)
-            opened.append(sink)
-        with sim.installed():
-            done = 0
-            while done < n_total:
-                batch = sim.advance(min(batch_size, n_total - done))
-                emit(batch)
-                done += len(batch)
-                if sim.stop_reason:
-                    status, message = DIVERGED, sim.stop_reason
-                    break
-    except KeyboardInterrupt:
-        emit(sim.take_batch())
-        status, message = INTERRUPTED, f"interrupted by the user at t = {sim.time:.6g} s"
-    except BaseException as exc:  # the controller (or a sink) failed: keep the samples, close, re-raise
+    run = Run(sim, duration, batch_size)
+    with sim.installed():
         try:
-            emit(sim.take_batch())
-        finally:
-            _close(opened, FAILED, {}, f"{type(exc).__name__}: {exc}")
-        raise
-    result = RunResult(status=status, message=message, info=info, **_concatenate(batches, sim))
-    try:
-        final = metrics(info, result.loops, status) if metrics else {}
-    except BaseException as exc:  # the logs must still end with a status, never without /metrics
-        _close(opened, FAILED, {}, f"metrics could not be computed: {type(exc).__name__}: {exc}")
-        raise
-    _close(opened, status, final, message)
-    return result
-
-
-def _close(sinks, status, metrics, message) -> None:
-    """Close every sink; the first error raised by a close is re-raised after all are closed."""
-    first = None
-    for sink in sinks:
-        try:
-            sink.close(status, metrics, message)
-        except Exception as exc:  # noqa: BLE001 - keep closing the others
-            first = first or exc
-    if first is not None:
-        raise first
-
-
-def _concatenate(batches, sim) -> dict:
-    if not batches:
-        batches = [sim.take_batch()]
-    loops = {name: {f: np.concatenate([b.loops[name][f] for b in batches]) for f in fields}
-             for name, fields in batches[0].loops.items()}
-    return {"loops": loops, "body_pos": np.concatenate([b.body_pos for b in batches]),
-            "body_quat": np.concatenate([b.body_quat for b in batches])}
+            while not run.finished:
+                run.step()
+        except KeyboardInterrupt:
+            run.interrupted()
+    return run.result()

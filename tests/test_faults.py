@@ -9,7 +9,7 @@ from ftstab_mj.logs import McapSink, RerunSink
 from ftstab_mj.logs.reader import read_log
 from ftstab_mj.logs.rerun_sink import write_rrd
 from ftstab_mj.logs.scene import model_shapes
-from ftstab_mj.logs.verify import verify_log
+from ftstab_mj.scenario.run import verify_log
 from ftstab_mj.metrics import compute_metrics
 from ftstab_mj.plants import make_plant
 from ftstab_mj.records import COMPLETED

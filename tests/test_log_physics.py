@@ -6,7 +6,7 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 
-from conftest import run_cli
+from conftest import record_run, run_cli
 from ftstab_mj.control import HongController, NominalLaw, RobustLaw
 from ftstab_mj.disturbances import Signal
 from ftstab_mj.errors import CallbackError
@@ -15,7 +15,7 @@ from ftstab_mj.logs.reader import read_log
 from ftstab_mj.metrics import compute_metrics
 from ftstab_mj.plants import make_plant
 from ftstab_mj.records import DIVERGED, FAILED, INTERRUPTED
-from ftstab_mj.sim import LoopSpec, simulate
+from ftstab_mj.sim import LoopSpec
 
 HONG = HongController(2, -0.2, (1.0, 2.0))
 
@@ -30,8 +30,8 @@ def test_logged_cart_samples_match_the_chain_dynamics(tmp_path):
     gamma = Signal("sine", offset=1.0, amplitude=0.4, freq=0.3, phase=1.0)
     loops = [LoopSpec("cart", controller=RobustLaw(HONG, phibar=1.0, gamma_m=0.5), disturbance=phi, gain=gamma, z0=(1.0, 0.0))]
     path = tmp_path / "cart.mcap"
-    simulate(make_plant("cart", {"mass": 2.0}), loops, duration=3.0, period=h, physics_step=dt,
-             sinks=[McapSink(path)], batch_size=200, metrics=compute_metrics)
+    record_run(make_plant("cart", {"mass": 2.0}), loops, duration=3.0, period=h, physics_step=dt,
+               sinks=[McapSink(path)], batch_size=200, metrics=compute_metrics)
     a = read_log(path).loops["cart"]
     assert len(a["t"]) == 600
     # the robust law's estimates are its constants (laws.py: same meaning for every law)
@@ -47,8 +47,8 @@ def test_logged_cart_samples_match_the_chain_dynamics(tmp_path):
 
 def _run(tmp_path, loops, duration=1.0, **kw):
     mcap, rrd = tmp_path / "run.mcap", tmp_path / "run.rrd"
-    result = simulate(make_plant("cart"), loops, duration=duration, period=0.01, physics_step=0.01,
-                      sinks=[McapSink(mcap), RerunSink(rrd)], batch_size=20, metrics=compute_metrics, **kw)
+    result = record_run(make_plant("cart"), loops, duration=duration, period=0.01, physics_step=0.01,
+                        sinks=[McapSink(mcap), RerunSink(rrd)], batch_size=20, metrics=compute_metrics, **kw)
     return result, mcap, rrd
 
 
@@ -91,8 +91,8 @@ def test_interrupted_run_is_finalized_with_its_status(tmp_path):
     loops = [LoopSpec("cart", controller=NominalLaw(HONG), z0=(1.0, 0.0))]
     calls = []
     mcap = tmp_path / "run.mcap"
-    result = simulate(make_plant("cart"), loops, duration=1.0, period=0.01, physics_step=0.01,
-                      sinks=[McapSink(mcap), _CtrlC(calls)], batch_size=20, metrics=compute_metrics)
+    result = record_run(make_plant("cart"), loops, duration=1.0, period=0.01, physics_step=0.01,
+                        sinks=[McapSink(mcap), _CtrlC(calls)], batch_size=20, metrics=compute_metrics)
     assert result.status == INTERRUPTED and calls[-1] == INTERRUPTED
     log = read_log(mcap)
     assert log.complete and log.recorded["status"] == INTERRUPTED and log.n_samples == 60

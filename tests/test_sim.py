@@ -4,6 +4,7 @@ import mujoco
 import numpy as np
 import pytest
 
+from conftest import record_run
 from ftstab_mj.control import AdaptiveLaw, HongController, RobustLaw
 from ftstab_mj.disturbances import Signal
 from ftstab_mj.errors import CallbackError, ParameterError
@@ -67,8 +68,8 @@ def _previous_callback(m, d):
 
 def test_a_run_hands_every_sample_to_the_sinks_and_returns_the_same_arrays():
     sink = RecordingSink()
-    res = simulate(make_plant("cart"), _cart_loops(), duration=1.0, period=0.01, physics_step=0.002, sinks=[sink],
-                   batch_size=30, scenario_dict={"name": "x"})
+    res = record_run(make_plant("cart"), _cart_loops(), duration=1.0, period=0.01, physics_step=0.002, sinks=[sink],
+                     batch_size=30, scenario_dict={"name": "x"})
     assert res.status == COMPLETED and res.message == ""
     assert res.n_samples == 100 and [len(b) for b in sink.batches] == [30, 30, 30, 10]
     assert sink.closed[0] == COMPLETED
@@ -133,8 +134,8 @@ def test_an_exception_in_the_callback_reaches_the_caller_and_the_previous_callba
     law = FailingLaw(ROBUST2, at=40, exc=RuntimeError("law exploded"))
     with control_callback(_previous_callback):
         with pytest.raises(CallbackError, match="law exploded") as err:
-            simulate(make_plant("cart"), _cart_loops(law), duration=1.0, period=0.01, physics_step=0.001, sinks=[sink],
-                     batch_size=25)
+            record_run(make_plant("cart"), _cart_loops(law), duration=1.0, period=0.01, physics_step=0.001,
+                       sinks=[sink], batch_size=25)
         assert mujoco.get_mjcb_control() is _previous_callback
     assert "t = 0.39" in str(err.value) and isinstance(err.value.__cause__, RuntimeError)
     assert sink.closed[0] == FAILED and "law exploded" in sink.closed[2]
@@ -144,8 +145,8 @@ def test_an_exception_in_the_callback_reaches_the_caller_and_the_previous_callba
 def test_ctrl_c_stops_the_run_as_interrupted_and_keeps_the_samples():
     sink = RecordingSink()
     law = FailingLaw(ROBUST2, at=61, exc=KeyboardInterrupt())
-    res = simulate(make_plant("cart"), _cart_loops(law), duration=1.0, period=0.01, physics_step=0.001, sinks=[sink],
-                   batch_size=25)
+    res = record_run(make_plant("cart"), _cart_loops(law), duration=1.0, period=0.01, physics_step=0.001,
+                     sinks=[sink], batch_size=25)
     assert res.status == INTERRUPTED and "interrupted" in res.message
     assert res.n_samples == 60 and sum(len(b) for b in sink.batches) == 60
     assert sink.closed[0] == INTERRUPTED
@@ -156,8 +157,8 @@ def test_divergence_stops_the_run_with_a_clear_message_and_keeps_the_samples():
     """A negative actuator gain (the wrong sign) drives the cart away: stopped at |z| > limit."""
     sink = RecordingSink()
     loops = [LoopSpec("cart", controller=ROBUST2, gain=Signal("constant", -1.0), z0=(1.0, 0.0))]
-    res = simulate(make_plant("cart"), loops, duration=20.0, period=0.01, physics_step=0.001, sinks=[sink],
-                   divergence_limit=50.0)
+    res = record_run(make_plant("cart"), loops, duration=20.0, period=0.01, physics_step=0.001, sinks=[sink],
+                     divergence_limit=50.0)
     assert res.status == DIVERGED and sink.closed[0] == DIVERGED
     assert "beyond the divergence limit 50" in res.message
     z = res.loops["cart"]["z"]

@@ -36,7 +36,7 @@ import numpy as np
 
 from ftstab_mj.errors import LogError
 from ftstab_mj.logs.scene import PLANE_HALF_THICKNESS, model_shapes, quat_rotate
-from ftstab_mj.records import RunInfo, SampleBatch
+from ftstab_mj.records import RunInfo, SampleBatch, format_table
 
 TIMELINE = "sim_time"
 APPLICATION_ID = "ftstab"
@@ -309,8 +309,6 @@ class RerunSink:
 
     def close(self, status: str, metrics: dict, message: str = "") -> None:
         import rerun as rr
-
-        from ftstab_mj.metrics import format_table
 
         if self._rec is None:
             return

@@ -1,4 +1,7 @@
-"""``ftstab replay --verify``: re-run the scenario recorded in a log and compare the samples bit for bit.
+"""``ftstab replay --verify``: compare a log with a re-run of its scenario, bit for bit.
+
+The re-run itself is the scenario runner's (ftstab_mj.scenario.run.verify_log): logs/ imports
+nothing above it.
 
 Runs are deterministic (same scenario, same seed, same platform and library versions: identical
 samples), so any difference means the log was altered or the code changed behaviour. Compared:
@@ -16,8 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ftstab_mj.errors import LogError
-from ftstab_mj.interrupts import Interrupted, last_signal
-from ftstab_mj.records import COMPLETED, DIVERGED, INTERRUPTED, LOOP_FIELDS, STAGE_FIELDS
+from ftstab_mj.records import COMPLETED, DIVERGED, LOOP_FIELDS, STAGE_FIELDS
 
 
 @dataclass(frozen=True)
@@ -42,27 +44,25 @@ def first_bit_difference(logged: np.ndarray, rerun: np.ndarray) -> int | None:
     return int(bad[0]) if bad.size else None
 
 
-def verify_log(log) -> Verification:
-    """Re-run ``log.info.scenario`` (no sinks) and compare it with ``log`` (a reader.LogData)."""
-    from ftstab_mj.scenario.run import run_scenario_dict
-
-    from ftstab_mj.plants import MODELS
-
+def rerun_scenario(log) -> dict:
+    """The scenario to re-run for ``log`` (a reader.LogData): the recorded one, cut to the samples the
+    log holds when it is unfinished (a prefix: samples never depend on the duration)."""
     if not log.info.scenario:
         raise LogError(f"{log.path}: no scenario recorded in /scenario, nothing to re-run")
-    plant = log.info.scenario.get("plant")
-    model = plant.get("model") if isinstance(plant, dict) else None
-    if model not in MODELS:  # a log is untrusted: re-running it must not read a local file it names
-        raise LogError(f"{log.path}: /scenario plant.model: --verify re-runs the shipped plants only "
-                       f"({', '.join(MODELS)}), found {str(model)[:80]!r}; re-run that scenario with ftstab run")
-    finished = log.complete and log.recorded is not None and log.recorded["status"] in (COMPLETED, DIVERGED)
     scenario = copy.deepcopy(log.info.scenario)
-    if not finished and log.n_samples and isinstance(scenario.get("sim"), dict):
-        # an unfinished log is a prefix: re-run only as far (samples never depend on the duration)
+    if not _finished(log) and log.n_samples and isinstance(scenario.get("sim"), dict):
         scenario["sim"]["duration"] = log.n_samples * log.info.period
-    rerun = run_scenario_dict(scenario, sinks=(), source=f"{log.path} /scenario").result
-    if rerun.status == INTERRUPTED:  # stopped by a signal: nothing to compare (not a difference)
-        raise last_signal() or Interrupted()
+    return scenario
+
+
+def _finished(log) -> bool:
+    return log.complete and log.recorded is not None and log.recorded["status"] in (COMPLETED, DIVERGED)
+
+
+def compare_log(log, rerun) -> Verification:
+    """Compare ``log`` with ``rerun`` (the sim RunResult of :func:`rerun_scenario`'s scenario, run by
+    ftstab_mj.scenario.run.verify_log)."""
+    finished = _finished(log)
     n = log.n_samples
     problems, compared = [], 0
     if n > rerun.n_samples:

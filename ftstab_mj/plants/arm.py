@@ -115,10 +115,11 @@ class ArmPlant(Plant):
         self.body_names = ("link0", "link1")
         self.phi_units = "N m (injected joint torque)"
         self.gamma_units = "motor gain factor (dimensionless, nominal 1; chain gamma = factor x (M^-1)_ii)"
-        m, _, _ = self.compile(0.001)
+        self._M = np.empty((N_LINKS, N_LINKS))
+
+    def bind(self, m):
         self._pos = np.array([self.sensor_block(m, f"q{i}").start for i in range(N_LINKS)])
         self._vel = np.array([self.sensor_block(m, f"qd{i}").start for i in range(N_LINKS)])
-        self._M = np.empty((N_LINKS, N_LINKS))
 
     def set_initial(self, m, d, q0, z0):
         d.qpos[:N_LINKS] = q0

@@ -98,7 +98,7 @@ class Plant:
 
     def compile(self, physics_step: float, integrator: str = "euler", nuserdata: int = 0):
         """(MjModel, MjData, MJCF text) for this physics step and integrator, with ``nuserdata``
-        userdata slots (the controllers' state); the plant is unchanged."""
+        userdata slots (the controllers' state); the plant's parameters are unchanged."""
         if integrator not in INTEGRATORS:
             raise ParameterError("integrator", "one of " + ", ".join(INTEGRATORS), integrator)
         spec = self._spec.copy()
@@ -108,7 +108,12 @@ class Plant:
         with control_callback(None):  # compiling runs a forward pass that would call it (callback.py)
             model = spec.compile()
             xml = spec.to_xml()
+        self.bind(model)
         return model, mujoco.MjData(model), xml
+
+    def bind(self, m) -> None:
+        """Read what the hooks below need from a compiled model (sensor addresses). :meth:`compile`
+        calls it, so a plant is compiled only when a run (or a question about the model) needs it."""
 
     # -- hooks used by the run loop ---------------------------------------------------------------
     def set_initial(self, m, d, q0: np.ndarray, z0: np.ndarray) -> None:

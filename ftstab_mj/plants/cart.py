@@ -64,10 +64,11 @@ class CartPlant(Plant):
         self.phi_units = "m/s^3 (injected force rate / mass)" if integrating else "m/s^2 (injected force / mass)"
         self.gamma_units = ("m/s^3 per unit u (actuator force rate / mass)" if integrating
                             else "m/s^2 per unit u (actuator force / mass)")
-        m, _, _ = self.compile(0.001)
+
+    def bind(self, m):
         self._pos = self.sensor_block(m, "x").start
         self._vel = self.sensor_block(m, "xdot").start
-        self._acc = self.sensor_block(m, "imu").start if integrating else None  # x component
+        self._acc = self.sensor_block(m, "imu").start if self.integrating else None  # x component
 
     def set_initial(self, m, d, q0, z0):
         d.qpos[0] = q0[0]

@@ -11,6 +11,7 @@ import sys
 import time
 from dataclasses import dataclass
 
+from ftstab_mj.records import FAILED, INTERRUPTED
 from ftstab_mj.scenario.loader import scenario_from_dict, scenario_to_dict
 from ftstab_mj.scenario.schema import Scenario
 
@@ -25,6 +26,60 @@ class ScenarioRun:
     metrics: dict
 
 
+def record(run, sinks=(), metrics=None):
+    """Drive ``run`` (a ftstab_mj.sim.Run) to its end with every sink observing it: open with
+    run.info, write each batch, then close with the status and ``metrics(info, samples, status)``
+    (e.g. compute_metrics; {} when None). Returns (RunResult, metrics dict).
+
+    Ctrl-C ends the run "interrupted" (the samples of the batch cut short are written, metrics
+    computed, sinks closed). Any other exception (the controller's CallbackError, a sink's error)
+    closes the sinks "failed" after writing what was recorded, and is re-raised.
+    """
+    opened = []
+    try:
+        for sink in sinks:
+            sink.open(run.info)
+            opened.append(sink)
+        with run.sim.installed():
+            while not run.finished:
+                _write(opened, run.step())
+    except KeyboardInterrupt:
+        _write(opened, run.interrupted())
+    except BaseException as exc:  # keep the samples, close, re-raise
+        message = f"{type(exc).__name__}: {exc}"
+        try:
+            _write(opened, run.stop(FAILED, message))
+        finally:
+            _close(opened, FAILED, {}, message)
+        raise
+    result = run.result()
+    try:
+        final = metrics(result.info, result.loops, result.status) if metrics else {}
+    except BaseException as exc:  # the logs must still end with a status, never without /metrics
+        _close(opened, FAILED, {}, f"metrics could not be computed: {type(exc).__name__}: {exc}")
+        raise
+    _close(opened, result.status, final, result.message)
+    return result, final
+
+
+def _write(sinks, batch) -> None:
+    if len(batch):
+        for sink in sinks:
+            sink.write(batch)
+
+
+def _close(sinks, status, metrics, message) -> None:
+    """Close every sink; the first error raised by a close is re-raised after all are closed."""
+    first = None
+    for sink in sinks:
+        try:
+            sink.close(status, metrics, message)
+        except Exception as exc:  # noqa: BLE001 - keep closing the others
+            first = first or exc
+    if first is not None:
+        raise first
+
+
 def run_scenario(sc: Scenario, sinks=()) -> ScenarioRun:
     """Run the scenario; every sink observes it and is closed with the metrics.
 
@@ -32,25 +87,39 @@ def run_scenario(sc: Scenario, sinks=()) -> ScenarioRun:
     """
     from ftstab_mj.metrics import compute_metrics
     from ftstab_mj.plants import make_plant
-    from ftstab_mj.sim import simulate
+    from ftstab_mj.sim import Run, Simulation
 
-    plant = make_plant(sc.plant.model, sc.plant.params)
-    computed = {}
-
-    def metrics(info, samples, status):  # computed once, for the sinks and for the caller
-        computed["metrics"] = compute_metrics(info, samples, status)
-        return computed["metrics"]
-
-    result = simulate(plant, sc.loops, duration=sc.sim.duration, period=sc.sim.period,
-                      physics_step=sc.sim.physics_step, integrator=sc.sim.integrator, sinks=tuple(sinks),
-                      divergence_limit=sc.sim.divergence_limit, scenario_dict=scenario_to_dict(sc),
-                      metric_settings=sc.metrics, metrics=metrics)
-    return ScenarioRun(sc, result, computed["metrics"])
+    s = sc.sim
+    sim = Simulation(make_plant(sc.plant.model, sc.plant.params), sc.loops, period=s.period,
+                     physics_step=s.physics_step, integrator=s.integrator, divergence_limit=s.divergence_limit)
+    run = Run(sim, s.duration, scenario_dict=scenario_to_dict(sc), metric_settings=sc.metrics)
+    result, metrics = record(run, sinks, compute_metrics)
+    return ScenarioRun(sc, result, metrics)
 
 
 def run_scenario_dict(raw: dict, sinks=(), source: str = "<recorded scenario>") -> ScenarioRun:
     """Validate a resolved scenario dict (e.g. a log's /scenario message) and run it."""
     return run_scenario(scenario_from_dict(raw, source), sinks)
+
+
+def verify_log(log):
+    """``ftstab replay --verify``: re-run the scenario recorded in ``log`` (a logs.reader.LogData) and
+    compare it with the log bit for bit (a logs.verify.Verification)."""
+    from ftstab_mj.errors import LogError
+    from ftstab_mj.interrupts import Interrupted, last_signal
+    from ftstab_mj.logs.verify import compare_log, rerun_scenario
+    from ftstab_mj.plants import PLANTS
+
+    scenario = rerun_scenario(log)
+    plant = scenario.get("plant")
+    model = plant.get("model") if isinstance(plant, dict) else None
+    if model not in PLANTS:  # a log is untrusted: re-running it must not read a local file it names
+        raise LogError(f"{log.path}: /scenario plant.model: --verify re-runs the registered plants only "
+                       f"({', '.join(PLANTS)}), found {str(model)[:80]!r}; re-run that scenario with ftstab run")
+    rerun = run_scenario_dict(scenario, sinks=(), source=f"{log.path} /scenario").result
+    if rerun.status == INTERRUPTED:  # stopped by a signal: nothing to compare (not a difference)
+        raise last_signal() or Interrupted()
+    return compare_log(log, rerun)
 
 
 class ProgressSink:
