@@ -504,10 +504,10 @@ class Run:
         return batch
 
     def stop(self, status: str, message: str) -> SampleBatch:
-        """End the run with ``status`` (INTERRUPTED, FAILED); returns the samples recorded since the
-        last batch (those of a batch cut short), empty when there are none."""
-        if not self.finished:
-            self.status, self.message = status, message
+        """End the run with ``status`` (INTERRUPTED, FAILED), also after its last batch (a Ctrl-C while
+        that batch is being recorded); returns the samples recorded since the last batch (those of a
+        batch cut short), empty when there are none."""
+        self.status, self.message = status, message
         return self._keep(self.sim.take_batch())
 
     def interrupted(self) -> SampleBatch:
