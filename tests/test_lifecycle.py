@@ -14,9 +14,12 @@ from ftstab_mj.scenario import load_scenario
 from ftstab_mj.scenario.run import run_scenario
 from ftstab_mj.sim import simulate
 
-# What logs/ may import: itself and the modules below it (data records, errors, the callback slot
-# its viewers clear while compiling a model, the package version).
-BELOW_LOGS = ("ftstab_mj.logs", "ftstab_mj.records", "ftstab_mj.errors", "ftstab_mj.callback")
+# What logs/ may import: itself and what lies below it, i.e. the record contract and pure functions
+# of records (metrics, control: the Rerun view draws Theorem 1's envelope), errors, the callback slot
+# its viewers clear while compiling a model, the package version. Above it, never: the run loop
+# (sim, native, plants), the scenario runner and loader, sweeps, the CLI.
+BELOW_LOGS = ("ftstab_mj.logs", "ftstab_mj.records", "ftstab_mj.metrics", "ftstab_mj.control", "ftstab_mj.errors",
+              "ftstab_mj.callback")
 
 
 def test_loading_and_running_a_scenario_compiles_the_plant_once(monkeypatch):
