@@ -22,23 +22,24 @@ L = 2.0  # f = sin t: |f^(n+1)| <= 1 < L
 
 
 def differentiate(D, taus, eps, T, seed=0):
-    """Run D on f = sin(t) + eps * U(-1, 1) sampled at each tau; max |z_i - f^(i)| over the second
-    half of [0, T], shape (len(taus) or len(eps), n + 1)."""
-    n = D.order
+    """Run D on f = sin(t) + eps * U(-1, 1) sampled at each tau (one run per tau, all the eps of a
+    run batched along a leading axis); max |z_i - f^(i)| over the second half of [0, T], shape
+    (len(taus) * len(eps), n + 1), tau-major."""
+    n, eps = D.order, np.atleast_1d(np.asarray(eps, dtype=float))
     errs = []
-    for tau, e in np.broadcast(np.atleast_1d(taus), np.atleast_1d(eps)):
+    for tau in np.atleast_1d(taus):
         K = int(round(T / tau))
         t = np.arange(K) * tau
-        y = np.sin(t) + e * np.random.default_rng(seed).uniform(-1.0, 1.0, K)
+        y = np.sin(t)[:, None] + eps * np.random.default_rng(seed).uniform(-1.0, 1.0, (K, len(eps)))
         s = D.initial_state(y[0])
-        est = np.empty((K, n + 1))
+        est = np.empty((K, len(eps), n + 1))
         for k in range(K):
             est[k] = D.estimate(s)
             s = D.step(s, y[k], tau)
-        true = np.stack([np.sin(t + i * np.pi / 2) for i in range(n + 1)], axis=1)
+        true = np.stack([np.sin(t + i * np.pi / 2) for i in range(n + 1)], axis=1)[:, None, :]
         tail = t >= T / 2
         errs.append(np.max(np.abs(est[tail] - true[tail]), axis=0))
-    return np.array(errs)
+    return np.concatenate(errs)
 
 
 def slopes(x, errs):

@@ -12,14 +12,14 @@ Continuous time (Levant 2003, Int. J. Control 76(9/10):924, section 4). The recu
 
 with sig(a, p) = |a|^p sign(a). Levant 2003 gives lambda_0..lambda_5 = 1.1, 1.5, 2, 3, 5, 8 as
 sufficient for n <= 5 (the defaults here). Substituting v_(i-1) into each line gives the
-equivalent non-recursive form (Levant 2003, eq. after (13); used by Livne & Levant 2014):
+equivalent non-recursive form (the one Livne & Levant 2014 discretize):
 
     z_i' = -lt_(n-i) L^((i+1)/(n+1)) sig(z_0 - f, (n-i)/(n+1)) + z_(i+1),   i = 0..n  (z_(n+1) = 0)
 
 with lt_n = lambda_n and lt_m = lambda_m lt_(m+1)^(m/(m+1)) (:func:`nonrecursive_lambdas`; e.g.
 n = 2: 1.1, 2.12, 2; n = 3: 1.1, 3.06, 4.16, 3).
 
-Accuracy (Levant 2003, Theorem 5 / 6). After a finite transient, without noise and with sampling
+Accuracy (Levant 2003, section 4). After a finite transient, without noise and with sampling
 period tau, |z_i - f^(i)| <= mu_i L tau^(n-i+1); with noise of amplitude eps (and tau small
 enough), |z_i - f^(i)| <= mu_i L^(i/(n+1)) eps^((n-i+1)/(n+1)). Both are asymptotically
 optimal; tests/test_loop_stages.py fits these slopes.
