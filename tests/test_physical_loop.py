@@ -83,6 +83,27 @@ def test_saturation_above_need_is_the_unsaturated_run_and_below_it_the_guarantee
     assert m["time_saturated"] > 0 and m["u_applied_max_abs"] == 3.0 and m["u_max_abs"] == 6.0
 
 
+def test_differentiator_in_closed_loop_on_the_cart_keeps_levants_accuracy():
+    # The signal is the cart's own position under the robust law (|x''| <= 3.6 < L = 5 near the
+    # origin): Levant's bounds hold for any such signal, so in closed loop too the estimation error
+    # of z_i scales as tau^(n-i+1) without noise and as eps^((n-i+1)/(n+1)) with it (n = 1).
+    # Tolerance 0.1 as in tests/test_loop_stages.py. Measured: 2.04, 1.01 and 0.92, 0.46.
+    def errors(sets):
+        run = run_scenario(load_scenario(ROBUST, POSITION + ["loops.cart.observer.L=5", "metrics.final_fraction=0.5"]
+                                         + sets))
+        return run.metrics["loops"]["cart"]["estimation_error_max"]
+
+    hs = [0.00025, 0.0005, 0.001, 0.002]
+    e_tau = np.array([errors([f"sim.period={h}", f"sim.physics_step={h}"]) for h in hs])
+    eps = [1e-5, 1e-4, 1e-3, 1e-2]
+    e_eps = np.array([errors(["sim.period=0.00025", "sim.physics_step=0.00025", f"loops.cart.sensor.noise={e}"])
+                      for e in eps])
+    s_tau = [np.polyfit(np.log(hs), np.log(e_tau[:, i]), 1)[0] for i in range(2)]
+    s_eps = [np.polyfit(np.log(eps), np.log(e_eps[:, i]), 1)[0] for i in range(2)]
+    assert abs(s_tau[0] - 2) < 0.1 and abs(s_tau[1] - 1) < 0.1, s_tau
+    assert abs(s_eps[0] - 1) < 0.1 and abs(s_eps[1] - 0.5) < 0.1, s_eps
+
+
 def test_output_feedback_converges_and_its_accuracy_follows_the_noise_as_the_theory_says():
     # position only, uniform noise eps, Levant's differentiator of order 1 (L = 5), robust law,
     # 0.25 ms sampling so that the noise term dominates the sampling term over the eps range
