@@ -19,9 +19,12 @@ the integrator. The per-step inputs (gain factor, injected disturbance; plants/b
 by the loop before each step.
 
 The per-sample pipeline is :meth:`Simulation._sample`: read z (``_read_z``: the plant's sensors
-minus the set points) -> every loop's law (``law.evaluate``, state advanced with ``law.advance``)
--> u -> inject (``_inject``: ctrl = gain u, the disturbance force). A per-loop stage (sensor
-model, observer, actuator model) slots in between two of these steps, in that one method.
+minus the set points) -> ``_sense`` (a loop's sensor and observer: what its law sees) -> every
+loop's law (``law.evaluate``, state advanced with ``law.advance``) -> u -> ``_actuate`` (a loop's
+actuator model: what the plant receives at each physics step) -> inject (``_inject``: ctrl = gain
+u, the disturbance force). The stages are ftstab_mj/loop_stages (LoopStages, built from the
+LoopSpec's sensor, observer and actuator tables); a loop without them, or with every stage at its
+identity, skips both steps and runs exactly as before they existed.
 
 Native path (``native=True | "auto"``, the default "auto"): the same per-sample and per-step work
 done by a C callback (ftstab_mj/native/run.py, kernel.c) so that a whole batch runs in one
@@ -31,8 +34,10 @@ implicitfast, a plant with a native sensor map, laws with a ``native_code``), an
 
 State. Each law's own state (``law.state_size`` numbers: the adaptive law's phi_hat, none for the
 others) is advanced exactly once per period (``law.advance``, z held) and lives in MuJoCo's
-``userdata`` (loop i at ``Simulation.state_slices[i]``), so ``mj_getState(mjSTATE_INTEGRATION)``
-(which also holds qpos, qvel, act, ctrl, qfrc_applied and time) saves the whole run state.
+``userdata`` (loop i at ``Simulation.state_slices[i]``), followed by each loop's stage state (the
+sensor's delay line, the differentiator, the actuator's lag: ``Simulation.stage_slices[i]``), so
+``mj_getState(mjSTATE_INTEGRATION)`` (which also holds qpos, qvel, act, ctrl, qfrc_applied and
+time) saves the whole run state.
 
 Outcomes. A run ends "completed", "diverged" (NaN or |z| beyond ``divergence_limit`` at a sample,
 a MuJoCo warning), or "interrupted" (Ctrl-C: :meth:`Run.interrupted` keeps the samples of the
