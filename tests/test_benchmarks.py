@@ -18,12 +18,3 @@ def test_speed_benchmark_prints_every_ratio():
     for row in ("callback robust r=2", "callback adaptive r=3", "full run, MCAP + Rerun",
                 "whole `ftstab run` process", "ideal chain r=2, 1000 initial states"):
         assert row in out.stdout, out.stdout
-
-
-@pytest.mark.skipif(not native.available(), reason=f"native kernel: {native.UNAVAILABLE_REASON}")
-def test_physical_loop_benchmark_prints_its_rows():
-    out = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "physical_loop.py"), "--repeat", "1",
-                          "--steps", "2000"], capture_output=True, text=True, timeout=300, cwd=ROOT)
-    assert out.returncode == 0, out.stderr
-    for row in ("native callback r=2, all stages on", "stages on / off, native r=3", "Python pipeline r=2, stages on"):
-        assert row in out.stdout, out.stdout

@@ -199,3 +199,18 @@ def test_the_law_sees_the_estimate_and_the_log_keeps_the_truth():
     # (the run evaluated it in C one sample at a time: equal to rounding)
     np.testing.assert_allclose(law.evaluate(L["z_hat"], law.initial_state()).u, L["u"], rtol=1e-14, atol=0)
     assert np.max(np.abs(law.evaluate(L["z"], law.initial_state()).u - L["u"])) > 0.1
+
+
+@pytest.mark.skipif(not native.available(), reason=native.UNAVAILABLE_REASON or "")
+def test_physical_loop_benchmark_prints_its_rows():
+    # the script the README quotes runs (shortened); no timing is asserted (speed lives in benchmarks/)
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    out = subprocess.run([sys.executable, str(root / "benchmarks" / "physical_loop.py"), "--repeat", "1",
+                          "--steps", "2000"], capture_output=True, text=True, timeout=300, cwd=root)
+    assert out.returncode == 0, out.stderr
+    for row in ("native callback r=2, all stages on", "stages on / off, native r=3", "Python pipeline r=2, stages on"):
+        assert row in out.stdout, out.stdout
