@@ -1,0 +1,108 @@
+"""The Python API: run a scenario, load one, replay a log, from a script or a notebook.
+
+    import ftstab_mj
+    sc = ftstab_mj.load_scenario("cart_r2_robust", overrides={"sim.duration": 2})
+    res = ftstab_mj.run(sc, out="runs")           # or ftstab_mj.run("cart_r2_robust", ...)
+    res.samples["cart"]["V1"], res.metrics["loops"]["cart"]["settle_time"], res.logs
+    log = ftstab_mj.replay(res.logs["mcap"])       # the same arrays and metrics, read back
+
+Everything is imported when first called, so ``import ftstab_mj`` stays cheap (no MuJoCo, Rerun).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+
+@dataclass
+class Result:
+    """What :func:`run` and :func:`replay` return.
+
+    samples: {loop name: {field: NumPy array}} with the fields of records.LOOP_FIELDS (z (n, r),
+    others (n,), chain units; time t in s) and any the loop adds; metrics: the metrics dict
+    (as ``ftstab run --json`` prints it); status: "completed" | "diverged" | "interrupted" |
+    "failed"; message: why a run stopped early; logs: {"mcap": Path, "rrd": Path} written
+    (empty when ``out`` is None); scenario: the resolved scenario (plain data);
+    body_pos (n, nbody, 3) m and body_quat (n, nbody, 4) (w, x, y, z): the bodies' poses (for a
+    replay, at the /tf display rate); warning: a replay's note on a truncated log, else None.
+    """
+
+    samples: dict
+    metrics: dict
+    status: str
+    message: str = ""
+    logs: dict = field(default_factory=dict)
+    scenario: dict = field(default_factory=dict)
+    body_pos: object = None
+    body_quat: object = None
+    warning: str | None = None
+
+
+def _overrides(overrides) -> list[str]:
+    """{"sim.duration": 2} or ["sim.duration=2"] -> the --set texts (dict values as TOML literals:
+    numbers, booleans, lists; a str is a TOML string)."""
+    if overrides is None:
+        return []
+    if isinstance(overrides, dict):
+        import json
+
+        return [f"{key}={json.dumps(value)}" for key, value in overrides.items()]
+    return [str(o) for o in overrides]
+
+
+def load_scenario(name_or_path, overrides=None):
+    """A validated scenario (ftstab_mj.scenario.Scenario) from a shipped name ("cart_r2_robust") or
+    a .toml path; overrides: {"key.path": value} or ["key.path=value"], validated like the file.
+    Raises ScenarioError (one line: file, key path, expected, found) on bad input."""
+    from ftstab_mj.scenario import find_scenario
+    from ftstab_mj.scenario import load_scenario as load
+
+    return load(find_scenario(str(name_or_path)), _overrides(overrides))
+
+
+def run(scenario_or_path, out=None, overrides=None, live=False) -> Result:
+    """Run a scenario (a Scenario, a shipped name or a .toml path) and return its :class:`Result`.
+
+    out: a directory for ``<name>.mcap`` and ``<name>.rrd`` (None: no logs); overrides: as for
+    :func:`load_scenario` (not with a Scenario); live: False, True or "spawn" (a native Rerun
+    viewer), "serve" (a web viewer), or a rerun+http:// URL: streams the run as it happens.
+    Raises ScenarioError on bad input and CallbackError when the controller raised.
+    """
+    from ftstab_mj.logs import McapSink, RerunSink
+    from ftstab_mj.scenario import Scenario, scenario_to_dict
+    from ftstab_mj.scenario.run import run_scenario
+
+    if isinstance(scenario_or_path, Scenario):
+        if overrides:
+            raise ValueError("overrides: expected none with a Scenario object (use load_scenario(path, overrides))")
+        sc = scenario_or_path
+    else:
+        sc = load_scenario(scenario_or_path, overrides)
+    sinks, logs = [], {}
+    live = "spawn" if live is True else (live or None)
+    if out is not None:
+        out = Path(out)
+        out.mkdir(parents=True, exist_ok=True)
+        logs = {"mcap": out / f"{sc.name}.mcap", "rrd": out / f"{sc.name}.rrd"}
+        sinks += [McapSink(logs["mcap"]), RerunSink(logs["rrd"], live=live)]
+    elif live:
+        sinks.append(RerunSink(None, live=live))
+    done = run_scenario(sc, sinks)
+    res = done.result
+    return Result(samples=res.loops, metrics=done.metrics, status=res.status, message=res.message, logs=logs,
+                  scenario=scenario_to_dict(sc), body_pos=res.body_pos, body_quat=res.body_quat)
+
+
+def replay(path) -> Result:
+    """Read a run's MCAP log (also a truncated one) and recompute its metrics from the samples.
+    Raises LogError when it is not a log, DamagedLog when its bytes were altered."""
+    from ftstab_mj.logs.reader import read_log
+    from ftstab_mj.metrics import compute_metrics
+    from ftstab_mj.records import INTERRUPTED
+
+    log = read_log(path)
+    status = log.recorded["status"] if log.recorded else INTERRUPTED
+    return Result(samples=log.loops, metrics=compute_metrics(log.info, log.loops, status), status=status,
+                  message=(log.recorded or {}).get("message", ""), logs={"mcap": Path(path)},
+                  scenario=log.info.scenario, body_pos=log.pose_pos, body_quat=log.pose_quat, warning=log.warning)
