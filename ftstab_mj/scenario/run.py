@@ -63,19 +63,28 @@ def record(run, sinks=(), metrics=None):
 
 
 def _write(sinks, batch) -> None:
+    """Hand a batch to every sink; a signal meanwhile is raised once all have it (interrupts.critical:
+    a SIGHUP in the middle of the MCAP write left a summary counting a batch the file lacked)."""
+    from ftstab_mj.interrupts import critical
+
     if len(batch):
-        for sink in sinks:
-            sink.write(batch)
+        with critical():
+            for sink in sinks:
+                sink.write(batch)
 
 
 def _close(sinks, status, metrics, message) -> None:
-    """Close every sink; the first error raised by a close is re-raised after all are closed."""
+    """Close every sink (a signal meanwhile is held); the first error raised by a close is re-raised
+    after all are closed."""
+    from ftstab_mj.interrupts import critical
+
     first = None
-    for sink in sinks:
-        try:
-            sink.close(status, metrics, message)
-        except Exception as exc:  # noqa: BLE001 - keep closing the others
-            first = first or exc
+    with critical():
+        for sink in sinks:
+            try:
+                sink.close(status, metrics, message)
+            except Exception as exc:  # noqa: BLE001 - keep closing the others
+                first = first or exc
     if first is not None:
         raise first
 
