@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import sys
 
@@ -293,6 +294,90 @@ def cmd_sweep(args) -> int:
     return 0
 
 
+def _floats(text: str) -> tuple[float, ...]:
+    try:
+        vals = tuple(float(x) for x in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated numbers like 1,0.5, got {text!r}") from None
+    if not all(math.isfinite(v) and v >= 0 for v in vals):
+        raise argparse.ArgumentTypeError(f"expected finite numbers >= 0, got {text!r}")
+    return vals
+
+
+def cmd_montecarlo(args) -> int:
+    from pathlib import Path
+
+    from ftstab_mj import montecarlo as mc
+    from ftstab_mj.metrics import bound_applies
+    from ftstab_mj.scenario import find_scenario, load_scenario
+    from ftstab_mj.sweep.table import write_table
+
+    path = find_scenario(args.scenario)
+    sc = load_scenario(path, args.set)
+    loop = args.loop or sc.loops[0].name
+    lp = next((x for x in sc.loops if x.name == loop), None)
+    if lp is None:
+        raise UsageError(f"--loop: expected a loop of {sc.name} ({', '.join(x.name for x in sc.loops)}), found {loop!r}")
+    if not 1 <= args.states <= mc.MAX_STATES:
+        raise UsageError(f"--states: expected an integer in [1, {mc.MAX_STATES}] (a work limit), found {args.states}")
+    r = len(lp.z0)
+    box = args.box or (max(abs(x) for x in lp.z0) or 1.0,) * r
+    if len(box) != r:
+        raise UsageError(f"--box: expected {r} half-widths (one per z_i of loop {loop}), found {len(box)}")
+    if args.on == "chain" and (args.workers > 1 or args.scheduler or args.engine):
+        raise UsageError("--on chain: expected no --workers/--engine/--scheduler (the native chain uses both cores itself)")
+    Z0 = mc.Distribution(args.states, tuple(box), args.seed).draw()
+    out = Path(args.out or Path("runs") / f"{sc.name}-montecarlo")
+    tty = sys.stderr.isatty()
+
+    def progress(done, total):
+        if tty:
+            sys.stderr.write(f"\r{done}/{total} states")
+            sys.stderr.flush()
+
+    say = (lambda *a, **k: None) if args.json else print
+    say(f"{sc.name}: {args.states} initial states uniform in |z_i| <= ({', '.join(f'{b:g}' for b in box)}), "
+        f"seed {args.seed}, on the {'ideal chain' if args.on == 'chain' else 'plant ' + sc.plant.model}")
+    if args.on == "chain":
+        rows, info = mc.run_chain(sc, loop, Z0, progress=progress)
+        applies = bound_applies(info)
+    else:
+        from ftstab_mj.sweep.runner import ScenarioTask
+        from ftstab_mj.tomlfile import read_toml
+        from ftstab_mj.scenario.loader import apply_override
+
+        raw = read_toml(path, "scenario file (.toml)")
+        for text in args.set:
+            apply_override(raw, text, str(path))
+        engine = args.engine or ("dask" if args.workers > 1 or args.scheduler else "serial")
+        rows = mc.run_plant(ScenarioTask(raw, str(path)), loop, Z0, engine, args.workers, args.scheduler, progress)
+        from ftstab_mj.scenario.run import run_scenario  # noqa: F401 - same runs as ftstab run
+        applies = all(math.isfinite(rw["time_bound"]) for rw in rows) and bool(rows)
+    if tty:
+        sys.stderr.write("\n")
+    summary = mc.summarize(rows, applies)
+    out.mkdir(parents=True, exist_ok=True)
+    write_table(rows, out / "montecarlo.parquet")
+    (out / "montecarlo.json").write_text(json.dumps(summary, indent=2) + "\n")
+    mc.figure(rows, summary, f"{sc.name}: settle time / T(z0)", out / "montecarlo.png")
+    if args.json:
+        print(json.dumps(summary, indent=2))
+        return 0
+    q = summary["ratio"]
+    print(f"  settled {summary['settled']}/{summary['states']}; with a time bound {summary['with_bound']}"
+          f" (bound {'applies' if applies else 'does not apply'})")
+    if q["median"] is not None:
+        print(f"  settle time / T(z0): min {q['min']:.3g}, median {q['median']:.3g}, p99 {q['p99']:.3g}, max {q['max']:.3g}")
+    if summary["violations"] is not None:
+        print(f"  states beyond their bound: {summary['violations']}")
+    if summary["worst"]:
+        w = summary["worst"]
+        print(f"  worst: state {w['row']}, z0 = [{', '.join(f'{x:.17g}' for x in w['z0'])}],"
+              f" settle time {w['settle_time']:.6g} s, T(z0) {w['time_bound']:.6g} s")
+    print(f"table: {out / 'montecarlo.parquet'}  summary: {out / 'montecarlo.json'}  figure: {out / 'montecarlo.png'}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = _Parser(prog="ftstab", description=(
         "Testbed for the finite-time robust and adaptive controllers of Harmouche, Laghrouche and "
@@ -381,6 +466,31 @@ def build_parser() -> argparse.ArgumentParser:
     w.add_argument("--report", action="store_true",
                    help="draw the sweep file's [[report.plot]] figures into DIR/report/ (PNG) and print the fits")
     w.set_defaults(func=cmd_sweep)
+
+    mc = sub.add_parser(
+        "montecarlo", help="Theorem 1's time bound checked on many initial states (per-trajectory metrics only)",
+        description="Draw N initial states of one loop of SCENARIO uniformly in a box, run each (on the ideal "
+                    "chain with the native kernel, or on the plant through the sweep engines), keep only "
+                    "per-trajectory metrics (settling time, T(z0), their ratio, V1 at the end, max |u|) and report "
+                    "the distribution of settle time / T(z0) and the worst case. Writes DIR/montecarlo.parquet, "
+                    ".json and .png.",
+        epilog="example: ftstab montecarlo cart_r2_nominal --states 10000 --box 1,1 --set sim.duration=8")
+    mc.add_argument("scenario", help="scenario file (.toml) or shipped scenario name")
+    mc.add_argument("--states", type=int, required=True, metavar="N", help="number of initial states")
+    mc.add_argument("--box", type=_floats, metavar="A1,...,AR",
+                    help="half-widths of the box of z0 (chain units; default: max |z0_i| of the scenario on every axis)")
+    mc.add_argument("--seed", type=int, default=0, help="seed of the draw of initial states (default 0)")
+    mc.add_argument("--loop", help="the loop whose z0 is drawn (default: the first)")
+    mc.add_argument("--on", choices=("chain", "plant"), default="chain",
+                    help="chain: the loop on the exact ideal chain (carts without friction or damping); "
+                         "plant: runs of the scenario itself, like ftstab run")
+    mc.add_argument("--workers", type=_workers, default=1, metavar="N", help="plant: parallel runs")
+    mc.add_argument("--engine", choices=("serial", "processes", "dask"), help="plant: the sweep engine")
+    mc.add_argument("--scheduler", metavar="ADDRESS", help="plant: a running Dask scheduler")
+    mc.add_argument("--set", action="append", default=[], metavar="KEY.PATH=VALUE", help="override a field (repeatable)")
+    mc.add_argument("--out", metavar="DIR", help="output directory (default: runs/<scenario>-montecarlo)")
+    mc.add_argument("--json", action="store_true", help="print the summary as JSON")
+    mc.set_defaults(func=cmd_montecarlo)
     return p
 
 
