@@ -199,7 +199,11 @@ def simulate_chain_kernel(law, z: np.ndarray, phi_hat: np.ndarray, nsteps: int, 
     threads: trajectories are split over that many threads (POSIX; the result is the same).
     """
     lib = _require()
+    from ftstab_mj.native.run import require_buffer
+
     n, r = z.shape
+    require_buffer("z", z, (n, law.r))  # advanced in place by the C code
+    require_buffer("phi_hat", phi_hat, (n,))
     zs = np.empty((nsteps, n, r))
     names = ("u", "u0", "V1", "dV1_dzr", "phi_hat", "gamma_hat", "phi", "gamma")
     rec = {k: np.empty((nsteps, n)) for k in names}

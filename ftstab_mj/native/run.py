@@ -120,6 +120,25 @@ def unsupported(plant, laws, loops, integrator: str) -> str:
     return ""
 
 
+def require_buffer(name: str, a, shape: tuple) -> None:
+    """The C side writes ``a`` as a C-contiguous float64 block of ``shape``: anything else is a
+    ValueError here (a raised check, kept under ``python -O``), never a write out of bounds."""
+    if not isinstance(a, np.ndarray) or a.dtype != np.float64 or not a.flags.c_contiguous or not a.flags.writeable:
+        what = type(a).__name__ if not isinstance(a, np.ndarray) else (
+            f"{a.dtype}, {'C-contiguous' if a.flags.c_contiguous else 'not C-contiguous'}"
+            f"{'' if a.flags.writeable else ', read-only'}")
+        raise ValueError(f"native buffer {name}: expected a writable C-contiguous float64 array, got {what}")
+    if a.shape != tuple(shape):
+        raise ValueError(f"native buffer {name}: expected shape {tuple(shape)}, got {a.shape}")
+
+
+def _require_indices(name: str, idx: np.ndarray, size: int) -> None:
+    """Indices the C side reads through (sensordata, bodies, userdata) must lie in [0, size)."""
+    idx = np.asarray(idx)
+    if idx.size and (idx.min() < 0 or idx.max() >= size):
+        raise ValueError(f"native run: {name} indices must lie in [0, {size}), got {idx.min()}..{idx.max()}")
+
+
 class NativeRun:
     """The native control callback of one Simulation (m, d), with its configuration kept alive."""
 
@@ -143,6 +162,11 @@ class NativeRun:
             "state_adr": np.array([sl.start if sl.stop > sl.start else -1 for sl in state_slices], dtype=np.int32),
             "u_held": np.zeros(n),
         }
+        _require_indices("sensor_adr", keep["sensor_adr"], m.nsensordata)
+        _require_indices("body_ids", keep["body_ids"], m.nbody)
+        _require_indices("state_adr", keep["state_adr"][keep["state_adr"] >= 0], m.nuserdata)
+        if keep["sensor_adr"].shape != (n, plant.r):
+            raise ValueError(f"native run: sensor_adr: expected shape {(n, plant.r)}, got {keep['sensor_adr'].shape}")
         R = self.run = FtRun()
         R.time = time_address(d)
         for name in ("ctrl", "qfrc_applied", "userdata", "sensordata", "qvel", "xpos", "xquat"):
@@ -188,8 +212,10 @@ class NativeRun:
             if st is None:
                 continue
             arrays = [rec[f] for f in ("z_measured", "z_hat", "u_applied")]
-            if not all(a.flags.c_contiguous and a.dtype == np.float64 for a in arrays):
-                raise ValueError("the stage records must be contiguous float64 arrays")
+            samples = len(rec["u_applied"])
+            for f, a, shape in zip(("z_measured", "z_hat", "u_applied"), arrays,
+                                   ((samples, st.channels), (samples, st.r), (samples,))):
+                require_buffer(f"loop {i} {f}", a, shape)
             R.rec_zm[i], R.rec_zh[i], R.rec_ua[i] = (a.ctypes.data for a in arrays)
             table = np.ascontiguousarray(noise_table(st, k0, len(rec["u_applied"])))
             tables.append(table)
@@ -201,8 +227,19 @@ class NativeRun:
         rec_t (k,); rec_z (n, k, r); rec: 8 arrays (n, k) in kernel order; body_pos (k, nbody, 3),
         body_quat (k, nbody, 4)). Inputs are the run loop's own arrays, written in place as in Python."""
         R = self.run
-        arrays = (t, inj, gain, force, ctrl_steps, rec_t, rec_z, *rec, body_pos, body_quat)
-        assert all(a.flags.c_contiguous and a.dtype == np.float64 for a in arrays)
+        k, n, N, nbody = len(t), R.n, R.N, R.nbody
+        r = rec_z.shape[-1] if rec_z.ndim == 3 else -1
+        steps = (k * N, n)
+        for name, a, shape in (("t", t, (k,)), ("inj", inj, steps), ("gain", gain, steps), ("force", force, steps),
+                               ("ctrl_steps", ctrl_steps, steps), ("rec_t", rec_t, (k,)),
+                               ("rec_z", rec_z, (n, k, max(r, 1))), ("body_pos", body_pos, (k, nbody, 3)),
+                               ("body_quat", body_quat, (k, nbody, 4)),
+                               *((f"rec[{i}]", a, (n, k)) for i, a in enumerate(rec))):
+            require_buffer(name, a, shape)
+        if len(rec) != len(R.rec):
+            raise ValueError(f"native run_batch: rec: expected {len(R.rec)} record arrays, got {len(rec)}")
+        if any(law.r != r for law in self._keep["laws"]):
+            raise ValueError(f"native run_batch: rec_z: expected a last axis of r = {self._keep['laws'][0].r}, got {r}")
         R.t0, R.nsteps, R.samples = d.time, len(inj), len(t)
         R.t, R.inj, R.gain, R.force, R.ctrl_steps = (a.ctypes.data for a in (t, inj, gain, force, ctrl_steps))
         R.rec_t, R.rec_z, R.body_pos, R.body_quat = (a.ctypes.data for a in (rec_t, rec_z, body_pos, body_quat))
