@@ -1,31 +1,54 @@
 """The Lyapunov certificate of Theorem 1 and the bounds of Theorem 3 (NOTES.md sections 5-6).
 
-For the full form, V1 and dV1/dt are homogeneous, so their extreme values on the unit level
-set {V1 = 1} give global constants. That set is sampled by dilating random states onto it
-(seeded, so the result is deterministic), then the worst samples are refined by a local search
-on the level set (the maximum of a continuous function over a compact set; sampling alone
-under-estimates it).
+Full form. V1 is homogeneous of degree 2 + k and dV1/dt of degree 2 + 2k for the dilation
+z_i -> lam^p_i z_i, so R(z) = (dV1/dt) / V1^alpha, alpha = (2 + 2k)/(2 + k), has degree 0 and
+c = -max R over any set that meets every dilation orbit once. The homogeneous unit sphere
+{max_i |z_i|^(1/p_i) = 1} is such a set, and it is the surface of the cube [-1, 1]^r: r pairs of
+faces {z_j = +-1}, each a box of dimension r - 1, and V1, dV1/dt are even in z, so the r faces
+z_j = +1 suffice. A branch and bound over boxes of those faces (ftstab_mj.control.interval:
+outward-rounded intervals, the mean-value form on small boxes) encloses max R:
+
+    c_lower = -(an upper bound of R over every box not yet discarded)   (guaranteed: c >= c_lower)
+    c_upper = -(a guaranteed lower bound of R at the witness state)     (c <= c_upper)
+
+and likewise c' = max |dV1/dz_r| / V1^alpha' from above (c_prime_upper, guaranteed).
+``status``: "certified" when c_lower > 0, "not certified" when c_upper <= 0 (the witness is a state
+with dV1/dt >= 0), "undecided" when the budget ran out first. The B&B stops when the gap
+c_upper - c_lower is within ``rtol`` of c_upper (then the result is deterministic) or at the
+budget (then it depends on the machine's speed).
+
+Simplified form: its companion V1 = sum (z_j - v_{j-1})^2 / 2 is not homogeneous, so no global
+constant exists; ``check_region`` proves dV1/dt < 0 on a shell r_in <= |z|_inf <= r_out, or finds a
+state where it fails.
 """
 
 from __future__ import annotations
 
+import time
 from dataclasses import asdict, dataclass
 
 import numpy as np
 
 from ftstab_mj.control.hong import HongController
+from ftstab_mj.control.hong_terms import SimplifiedTerms, Terms
+from ftstab_mj.control.interval import Dual, Iv, _up
 from ftstab_mj.errors import ParameterError
 
-DEFAULT_SAMPLES = 200_000
+DEFAULT_SAMPLES = 20_000  # witness search: states sampled on the faces before the B&B
 DEFAULT_SEED = 0
+DEFAULT_RTOL = 2e-3  # relative gap c_upper - c_lower at which the B&B stops
+MAX_SAMPLES = 10_000_000
+MAX_LIVE_BOXES = 2_000_000  # memory cap of the B&B (about 0.2 GB at r = 6)
+CERTIFIED, NOT_CERTIFIED, UNDECIDED = "certified", "not certified", "undecided"
 
 
 @dataclass(frozen=True)
 class Certificate:
     """Constants of dV1/dt <= -c V1^alpha and |dV1/dz_r| <= c' V1^alpha' (full form).
 
-    For the simplified form c and alpha are None (no homogeneous V1); ``region_max_dV1dt``
-    reports the largest dV1/dt found on the sampled bounded region instead.
+    c is the guaranteed lower bound c_lower; c_prime the guaranteed upper bound c_prime_upper.
+    witness: a state on {V1 = 1} where dV1/dt / V1^alpha >= -c_upper (floats, r values).
+    For the simplified form c and alpha are None; the region_* fields report check_region.
     """
 
     form: str
@@ -33,16 +56,34 @@ class Certificate:
     alpha: float | None
     c_prime: float | None
     alpha_prime: float | None
-    certified: bool  # c > 0 (full form); always False for the simplified form (not global)
+    certified: bool  # status == "certified"
     samples: int
     seed: int
-    region_radius: float | None = None  # simplified form: |z|_inf bound of the region checked
-    region_max_dV1dt: float | None = None  # simplified form: max of dV1/dt over the region
-    region_negative: bool | None = None  # simplified form: dV1/dt < 0 at every sample
+    status: str = UNDECIDED
+    c_lower: float | None = None
+    c_upper: float | None = None
+    c_prime_upper: float | None = None
+    c_prime_lower: float | None = None
+    witness: tuple | None = None
+    boxes: int = 0  # boxes the B&B evaluated
+    seconds: float = 0.0  # CPU time of the computation
+    region_radius: float | None = None  # simplified form: outer |z|_inf of the shell checked
+    region_inner: float | None = None  # simplified form: inner |z|_inf of the shell
+    region_max_dV1dt: float | None = None  # simplified form: guaranteed upper bound of dV1/dt there
+    region_negative: bool | None = None  # simplified form: True proven < 0, False a witness >= 0, None undecided
     note: str = ""
 
     def to_dict(self) -> dict:
-        return asdict(self)
+        d = asdict(self)
+        d["witness"] = None if self.witness is None else list(self.witness)
+        return d
+
+    @property
+    def gap(self) -> float | None:
+        """(c_upper - c_lower) / |c_upper|: how far the two bounds are apart (relative)."""
+        if self.c_lower is None or self.c_upper is None or self.c_upper == 0:
+            return None
+        return (self.c_upper - self.c_lower) / abs(self.c_upper)
 
     def time_bound(self, V1_0):
         """Theorem 1's bound on the convergence time from a state with V1 = V1_0: V1_0^(1-a)/(c(1-a)).
@@ -57,11 +98,7 @@ class Certificate:
 
 
 def unit_level_set_points(hong: HongController, n: int, rng: np.random.Generator) -> np.ndarray:
-    """n points with V1 = 1 (full form): random directions dilated onto the level set. Shape (n, r).
-
-    Directions are drawn with log-uniform magnitudes per component so that states where one
-    component dominates (where extremes of dV1/dt often sit) are well represented.
-    """
+    """n points with V1 = 1 (full form): random directions dilated onto the level set. Shape (n, r)."""
     r = hong.r
     mags = 10.0 ** rng.uniform(-3.0, 1.0, size=(n, r))
     z = mags * rng.choice([-1.0, 1.0], size=(n, r))
@@ -74,63 +111,293 @@ def _onto_unit_level(hong, z):
     return hong.dilate(z, lam)
 
 
-def _refine_max(hong, f, z_best, rng, rounds=60, spread=0.2):
-    """Local random search for max f on {V1 = 1}, started from the rows of z_best (m, r)."""
-    z = z_best.copy()
-    fz = f(z)
-    scale = np.abs(z).mean(axis=0) + 1e-12
-    for it in range(rounds):
-        step = spread * (0.5 ** (it / 12.0))
-        cand = _onto_unit_level(hong, z + step * scale * rng.standard_normal(z.shape))
-        fc = f(cand)
-        better = np.isfinite(fc) & (fc > fz)
-        z[better], fz[better] = cand[better], fc[better]
-    return float(np.nanmax(fz))
+# -- the quantity maximised over the faces ----------------------------------------------------------
+
+class _Ratio:
+    """num / V1^a on the face z_face = 1 of the cube: num = dV1/dt (kind "c") or |dV1/dz_r| ("cp")."""
+
+    def __init__(self, terms: Terms, kind: str):
+        self.t, self.kind = terms, kind
+        self.a = terms.alpha if kind == "c" else terms.alpha_prime
+        self.r = terms.r
+
+    def _ratio(self, V, dV, sr):
+        num = dV if self.kind == "c" else sr.abs()
+        return num * V.pabs(self.a).recip()
+
+    def floats(self, z):
+        """R at float states z (n, r) (an estimate: rounding not enclosed)."""
+        with np.errstate(all="ignore"):
+            V, dV, sr, _ = self.t.evaluate([z[:, i] for i in range(self.r)])
+            num = dV if self.kind == "c" else np.abs(sr)
+            out = num / V ** self.a.mid
+        return np.where(np.isfinite(out), out, -np.inf)
+
+    def points(self, z) -> Iv:
+        """An enclosure of R at the float states z (n, r)."""
+        with np.errstate(all="ignore"):
+            return self._ratio(*self.t.evaluate([Iv(z[:, i]) for i in range(self.r)])[:3])
+
+    def boxes(self, face: int, lo, hi):
+        """Bounds over boxes of face ``face``: lo, hi (n, r - 1) box coordinates (the z_i, i != face).
+
+        Returns (upper bound of R on each box (n,), coordinate to split (n,), guaranteed lower bound
+        of R at each centre (n,), centres as states (n, r)).
+        """
+        d = self.r - 1
+        n = len(lo)
+        mid = 0.5 * (lo + hi)
+        zc = np.insert(mid, face, 1.0, axis=1)
+        with np.errstate(all="ignore"):
+            zs, m = [], 0
+            for i in range(self.r):
+                if i == face:
+                    zs.append(Iv(1.0))
+                else:
+                    zs.append(Dual(Iv(lo[:, m], hi[:, m]), [Iv(1.0) if mm == m else None for mm in range(d)]))
+                    m += 1
+            R = self._ratio(*self.t.evaluate(zs)[:3])
+            Rc = self.points(zc)
+            rad = _up(np.maximum(_up(hi - mid), _up(mid - lo)))
+            mv = Rc.hi.copy()
+            score = np.zeros((n, d))
+            for j, g in enumerate(R.g):
+                if g is not None:
+                    term = _up(g.mag() * rad[:, j])
+                    mv = _up(mv + term)
+                    score[:, j] = term
+        ub = np.fmin(R.v.hi, mv)
+        ub = np.where(np.isnan(ub), np.inf, ub)
+        # split where the mean-value form says the enclosure is widest; where it is unbounded
+        # (a singular derivative in the box), split the widest side
+        plain = ~np.isfinite(score).all(axis=1) | ~(score > 0).any(axis=1)
+        split = np.where(plain, np.argmax(rad, axis=1), np.argmax(np.where(np.isfinite(score), score, 0.0), axis=1))
+        lb = np.where(np.isnan(Rc.lo), -np.inf, Rc.lo)
+        return ub, split, lb, zc
+
+
+@dataclass
+class _Max:
+    upper: float  # guaranteed: R <= upper on every face
+    lower: float  # guaranteed: R(witness) >= lower
+    witness: np.ndarray  # (r,)
+    boxes: int
+    converged: bool
+
+
+def _seed_points(obj: _Ratio, samples: int, rng) -> np.ndarray:
+    """States on the faces with a large float R: sampled, then improved by a local random search."""
+    r = obj.r
+    per = max(1, samples // r)
+    pts = []
+    for face in range(r):
+        x = rng.uniform(-1.0, 1.0, size=(per, r - 1))
+        x[per // 2:] = np.sign(x[per // 2:]) * 10.0 ** rng.uniform(-6.0, 0.0, size=x[per // 2:].shape)
+        pts.append(np.insert(x, face, 1.0, axis=1))
+    z = np.concatenate(pts)
+    f = obj.floats(z)
+    top = np.argsort(f)[-min(32, len(f)):]
+    z, f = z[top], f[top]
+    on_face = np.isclose(np.abs(z), 1.0)
+    for it in range(80):
+        step = 0.3 * 0.85 ** it
+        cand = np.clip(z + step * rng.standard_normal(z.shape) * np.maximum(np.abs(z), 1e-6), -1.0, 1.0)
+        cand[on_face] = z[on_face]
+        fc = obj.floats(cand)
+        better = fc > f
+        z[better], f[better] = cand[better], fc[better]
+    return z
+
+
+def _maximise(obj: _Ratio, seeds, rtol, deadline, stop_if_positive, progress=None) -> _Max:
+    """Branch and bound for max R over the r faces (see the module docstring)."""
+    r, d = obj.r, obj.r - 1
+    lb_seed = obj.points(seeds).lo
+    lb_seed = np.where(np.isnan(lb_seed), -np.inf, lb_seed)
+    i = int(np.argmax(lb_seed))
+    best, wit = float(lb_seed[i]), seeds[i].copy()
+    if d == 0:  # r = 1: the sphere is the point z_1 = 1
+        R = obj.points(np.ones((1, 1)))
+        return _Max(float(R.hi[0]), float(R.lo[0]), np.ones(1), 1, True)
+    lo = np.full((r, d), -1.0)
+    hi = np.full((r, d), 1.0)
+    face = np.arange(r)
+    ub, split = np.empty(r), np.empty(r, dtype=int)
+    nbox = 0
+
+    def evaluate(lo, hi, face):
+        nonlocal best, wit, nbox
+        ub, split = np.empty(len(lo)), np.empty(len(lo), dtype=int)
+        for f in np.unique(face):
+            sel = face == f
+            u, s, lbc, zc = obj.boxes(int(f), lo[sel], hi[sel])
+            ub[sel], split[sel] = u, s
+            j = int(np.argmax(lbc))
+            if lbc[j] > best:
+                best, wit = float(lbc[j]), zc[j].copy()
+        nbox += len(lo)
+        return ub, split
+
+    ub, split = evaluate(lo, hi, face)
+    converged = False
+    while True:
+        keep = ub >= best
+        lo, hi, face, ub, split = lo[keep], hi[keep], face[keep], ub[keep], split[keep]
+        top = float(ub.max()) if len(ub) else best
+        if top - best <= rtol * abs(best) or (stop_if_positive and best >= 0.0):
+            converged = top - best <= rtol * abs(best)
+            break
+        if time.process_time() > deadline or len(ub) > MAX_LIVE_BOXES:
+            break
+        if progress is not None:
+            progress(best, top, nbox)
+        m = min(len(ub), max(256, min(4096, len(ub) // 4)))
+        pick = np.argpartition(ub, len(ub) - m)[len(ub) - m:]
+        rest = np.ones(len(ub), dtype=bool)
+        rest[pick] = False
+        plo, phi, pf, ps = lo[pick], hi[pick], face[pick], split[pick]
+        rows = np.arange(m)
+        cut = 0.5 * (plo[rows, ps] + phi[rows, ps])
+        lo1, hi1 = plo.copy(), phi.copy()
+        hi1[rows, ps] = cut
+        lo2, hi2 = plo.copy(), phi.copy()
+        lo2[rows, ps] = cut
+        clo, chi, cf = np.concatenate([lo1, lo2]), np.concatenate([hi1, hi2]), np.concatenate([pf, pf])
+        cub, csplit = evaluate(clo, chi, cf)
+        lo, hi, face = np.concatenate([lo[rest], clo]), np.concatenate([hi[rest], chi]), np.concatenate([face[rest], cf])
+        ub, split = np.concatenate([ub[rest], cub]), np.concatenate([split[rest], csplit])
+    top = float(ub.max()) if len(ub) else best
+    return _Max(max(top, best), best, wit, nbox, converged)
 
 
 def certify(hong: HongController, samples: int = DEFAULT_SAMPLES, seed: int = DEFAULT_SEED,
-            region_radius: float = 1.0) -> Certificate:
-    """Compute the certificate of ``hong`` (see module docstring). Deterministic for a given seed."""
-    if samples < 100:
-        raise ParameterError("samples", "an integer >= 100", samples)
+            region_radius: float = 1.0, budget: float | None = None, rtol: float = DEFAULT_RTOL,
+            region_inner: float | None = None, progress=None) -> Certificate:
+    """The certificate of ``hong`` (see the module docstring).
+
+    samples, seed: the witness search before the B&B (seeded: deterministic). budget: CPU seconds
+    (None: until the gap is within rtol). progress: called as progress(text) now and then.
+    Simplified form: check_region on the shell region_inner <= |z|_inf <= region_radius
+    (region_inner defaults to region_radius / 100).
+    """
+    _check_int("samples", samples, 100, MAX_SAMPLES)
+    _check_int("seed", seed, 0, 2 ** 63 - 1)
+    if not (isinstance(rtol, float) and 1e-9 <= rtol <= 1.0):
+        raise ParameterError("rtol", "a number in [1e-9, 1]", rtol)
+    if budget is not None and not (np.isfinite(budget) and 0 < budget <= 86400):
+        raise ParameterError("budget", "a number of seconds in (0, 86400]", budget)
+    t0 = time.process_time()
+    deadline = t0 + (budget if budget is not None else np.inf)
     rng = np.random.default_rng(seed)
     if hong.form == "simplified":
-        return _certify_simplified(hong, samples, seed, rng, region_radius)
-    z = unit_level_set_points(hong, samples, rng)
-    dVdt = hong.closed_loop_dV1dt(z)
-    dVr = np.abs(hong.dV1_dzr(z))
-    top = min(64, samples)
-
-    def best_rows(values):
-        v = np.where(np.isfinite(values), values, -np.inf)
-        return z[np.argpartition(v, -top)[-top:]]
-
-    max_dVdt = max(float(np.nanmax(dVdt)), _refine_max(hong, hong.closed_loop_dV1dt, best_rows(dVdt), rng))
-    c_prime = max(float(np.nanmax(dVr)),
-                  _refine_max(hong, lambda x: np.abs(hong.dV1_dzr(x)), best_rows(dVr), rng))
+        inner = region_radius / 100.0 if region_inner is None else region_inner
+        return check_region(hong, inner, region_radius, samples, seed, deadline, t0)
+    terms = Terms(hong.r, hong.k, hong.gains)
+    say = None
+    if progress is not None:
+        def say(best, top, n, what="c"):
+            progress(f"{what}: bound {-top if what == 'c' else top:.6g} .. {-best if what == 'c' else best:.6g}"
+                     f" after {n} boxes, {time.process_time() - t0:.1f} s")
+    obj = _Ratio(terms, "c")
+    mc = _maximise(obj, _seed_points(obj, samples, rng), rtol, deadline, True, say)
+    objp = _Ratio(terms, "cp")
+    mp = _maximise(objp, _seed_points(objp, samples, rng), rtol, max(deadline, time.process_time() + 1.0), False,
+                   None if say is None else (lambda b, t, n: say(b, t, n, "c'")))
+    c_lower, c_upper = -mc.upper, -mc.lower
+    status = CERTIFIED if c_lower > 0 else NOT_CERTIFIED if c_upper <= 0 else UNDECIDED
     k = hong.k
-    c = -max_dVdt
+    with np.errstate(all="ignore"):
+        zw = np.array([float(x) for x in terms.z_of([float(x) for x in mc.witness])[0]])
+        wit = _onto_unit_level(hong, zw[None, :])[0]
+    note = {CERTIFIED: "k = 0: linear law, exponential (not finite-time) convergence" if k == 0 else "",
+            NOT_CERTIFIED: "dV1/dt >= 0 at the witness state on {V1 = 1}: no finite-time certificate for these gains",
+            UNDECIDED: "the budget ran out before the bounds separated: no certificate (raise --budget)"}[status]
     return Certificate(
-        form="full", c=c, alpha=(2.0 + 2.0 * k) / (2.0 + k), c_prime=c_prime,
-        alpha_prime=1.0 - float(hong.p[hong.r - 1]) / (2.0 + k), certified=bool(c > 0.0),
-        samples=samples, seed=seed,
-        note=("max of dV1/dt on {V1 = 1} is >= 0: no finite-time certificate for these gains" if c <= 0 else
-              "k = 0: linear law, exponential (not finite-time) convergence" if k == 0 else ""),
-    )
+        form="full", c=c_lower, alpha=(2.0 + 2.0 * k) / (2.0 + k), c_prime=mp.upper,
+        alpha_prime=1.0 - float(hong.p[hong.r - 1]) / (2.0 + k), certified=status == CERTIFIED,
+        samples=samples, seed=seed, status=status, c_lower=c_lower, c_upper=c_upper,
+        c_prime_upper=mp.upper, c_prime_lower=mp.lower, witness=tuple(float(x) for x in wit),
+        boxes=mc.boxes + mp.boxes, seconds=time.process_time() - t0, note=note)
 
 
-def _certify_simplified(hong, samples, seed, rng, radius):
-    """Simplified form: sample the box |z_i| <= radius and look at the sign of dV1/dt there."""
-    z = rng.uniform(-radius, radius, size=(samples, hong.r))
-    dVdt = hong.closed_loop_dV1dt(z)
-    finite = np.isfinite(dVdt)
-    mx = float(np.max(dVdt[finite]))
+def _check_int(name, val, lo, hi):
+    if isinstance(val, bool) or not isinstance(val, (int, np.integer)) or not lo <= val <= hi:
+        raise ParameterError(name, f"an integer in [{lo}, {hi}]", val)
+
+
+# -- simplified form: a sound check on a bounded shell ----------------------------------------------
+
+def check_region(hong: HongController, inner: float, outer: float, samples: int = DEFAULT_SAMPLES,
+                 seed: int = DEFAULT_SEED, deadline: float = np.inf, t0: float | None = None) -> Certificate:
+    """Prove dV1/dt < 0 on {inner <= |z|_inf <= outer} (any form's own V1; used for the simplified
+    form) by bisecting the 2r slabs of the shell until every box has an upper bound < 0, or find a
+    state with a guaranteed dV1/dt >= 0 (region_negative False), or stop at the deadline (None)."""
+    t0 = time.process_time() if t0 is None else t0
+    if not (np.isfinite(outer) and np.isfinite(inner) and 0 < inner < outer <= 1e6):
+        raise ParameterError("region", "0 < inner < outer <= 1e6 (|z|_inf)", (inner, outer))
+    r = hong.r
+    terms = SimplifiedTerms(r, hong.k, hong.gains) if hong.form == "simplified" else Terms(r, hong.k, hong.gains)
+
+    def dV(z):
+        return terms.evaluate(z)[1]
+
+    rng = np.random.default_rng(seed)
+    z = rng.uniform(-outer, outer, size=(samples, r))
+    with np.errstate(all="ignore"):
+        f = dV([z[:, i] for i in range(r)])
+    f = np.where(np.isfinite(f), f, -np.inf)
+    lo, hi = [], []
+    for j in range(r):
+        for sgn in (-1.0, 1.0):
+            a, b = np.full(r, -outer), np.full(r, outer)
+            a[j], b[j] = (inner, outer) if sgn > 0 else (-outer, -inner)
+            lo.append(a)
+            hi.append(b)
+    lo, hi = np.array(lo), np.array(hi)
+    witness, wval, nbox, negative = None, None, 0, None
+    while True:
+        with np.errstate(all="ignore"):
+            mid = 0.5 * (lo + hi)
+            box = dV([Iv(lo[:, i], hi[:, i]) for i in range(r)])
+            cen = dV([Iv(mid[:, i]) for i in range(r)])
+        nbox += len(lo)
+        ub = np.where(np.isnan(box.hi), np.inf, box.hi)
+        clo = np.where(np.isnan(cen.lo), -np.inf, cen.lo)
+        if (clo >= 0).any():
+            j = int(np.argmax(clo))
+            witness, wval, negative = mid[j], float(clo[j]), False
+            break
+        open_ = ub >= 0
+        if not open_.any():
+            negative = True
+            break
+        if time.process_time() > deadline or open_.sum() > MAX_LIVE_BOXES // 2:
+            break
+        lo, hi = lo[open_], hi[open_]
+        m = min(len(lo), 8192)
+        order = np.argsort(-ub[open_])[:m]
+        rest = np.ones(len(lo), dtype=bool)
+        rest[order] = False
+        plo, phi = lo[order], hi[order]
+        ax = np.argmax(phi - plo, axis=1)
+        rows = np.arange(m)
+        cut = 0.5 * (plo[rows, ax] + phi[rows, ax])
+        lo1, hi1, lo2, hi2 = plo.copy(), phi.copy(), plo.copy(), phi.copy()
+        hi1[rows, ax] = cut
+        lo2[rows, ax] = cut
+        lo, hi = np.concatenate([lo[rest], lo1, lo2]), np.concatenate([hi[rest], hi1, hi2])
+    top = float(np.max(ub)) if negative is not False else wval
+    verdict = {True: "dV1/dt < 0 proven on the whole shell",
+               False: "dV1/dt >= 0 (guaranteed) at the witness state",
+               None: "undecided within the budget"}[negative]
     return Certificate(
-        form="simplified", c=None, alpha=None, c_prime=None, alpha_prime=None, certified=False,
-        samples=samples, seed=seed, region_radius=radius, region_max_dV1dt=mx,
-        region_negative=bool(mx < 0.0),
-        note=("simplified form: V1 = sum (z_j - v_{j-1})^2/2 is not homogeneous, so this is a check of "
-              "the sign of dV1/dt on the box |z_i| <= radius only, not a global certificate"),
+        form=hong.form, c=None, alpha=None, c_prime=None, alpha_prime=None, certified=False,
+        samples=samples, seed=seed, status=UNDECIDED if negative is None else NOT_CERTIFIED,
+        witness=None if witness is None else tuple(float(x) for x in witness), boxes=nbox,
+        seconds=time.process_time() - t0, region_radius=outer, region_inner=inner,
+        region_max_dV1dt=top, region_negative=negative,
+        note=(f"{hong.form} form: V1 = sum (z_j - v_{{j-1}})^2/2 is not homogeneous, so this is a check on the shell "
+              f"{inner:g} <= |z|_inf <= {outer:g} only, not a global certificate: {verdict}"),
     )
 
 

@@ -1,0 +1,273 @@
+"""Outward-rounded interval arithmetic over NumPy arrays, with an optional enclosure of the gradient.
+
+``Iv(lo, hi)`` holds one interval per array element (any shape, all elements evaluated at once).
+Every operation rounds its result outward: the bounds of ``+ - * /`` (correctly rounded in IEEE
+754) are moved one ulp outward with ``np.nextafter``; those of ``x ** p`` (glibc's ``pow`` is
+documented below 1 ulp) two ulps. An exponent is itself an interval (``Exp``): the exponents of
+Hong's controller are rational functions of k that a float does not hold exactly, and ``x ** p`` is
+monotone in p for fixed x, so the endpoints of the exponent interval bound it.
+
+Unbounded is allowed: an infinite bound means "no bound known" (``0 * inf`` is taken as 0, the
+product of 0 with an unbounded real). NaN never appears in a result.
+
+``Dual(v, g)``: an interval ``v`` and a list of intervals ``g`` enclosing the gradient of the same
+quantity over a box (forward-mode differentiation over intervals). The mean-value form
+f(X) <= f(c) + sum_j max|g_j| |X_j - c_j| then tightens the bound on small boxes (second order in
+the box width) where the plain interval enclosure is only first order.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+_INF = np.inf
+
+
+def _dn(x, n=1):
+    for _ in range(n):
+        x = np.nextafter(x, -_INF)
+    return x
+
+
+def _up(x, n=1):
+    for _ in range(n):
+        x = np.nextafter(x, _INF)
+    return x
+
+
+class Exp:
+    """An exponent known to lie in [lo, hi] (floats); ``mid`` is the float a point computation uses."""
+
+    __slots__ = ("lo", "hi", "mid")
+
+    def __init__(self, lo, hi=None, mid=None):
+        self.lo, self.hi = float(lo), float(lo if hi is None else hi)
+        self.mid = float(mid) if mid is not None else 0.5 * (self.lo + self.hi)
+
+    @classmethod
+    def of(cls, iv: "Iv") -> "Exp":
+        lo, hi = float(iv.lo), float(iv.hi)
+        return cls(lo, hi, 0.5 * (lo + hi))
+
+    def is_exactly(self, x: float) -> bool:
+        return self.lo == x and self.hi == x
+
+    def iv(self) -> "Iv":
+        return Iv(self.lo, self.hi)
+
+
+def _pow_pos(x, e: Exp, lower: bool):
+    """A bound on x ** p for every p in e, x >= 0 elementwise (lower or upper)."""
+    with np.errstate(divide="ignore", over="ignore", invalid="ignore"):
+        a = np.power(x, e.lo)
+        b = a if e.lo == e.hi else np.power(x, e.hi)
+    return _dn(np.minimum(a, b), 2) if lower else _up(np.maximum(a, b), 2)
+
+
+def _clean(lo, hi):
+    return Iv(np.where(np.isnan(lo), -_INF, lo), np.where(np.isnan(hi), _INF, hi))
+
+
+class Iv:
+    """Intervals [lo, hi] elementwise (arrays of one shape, or scalars)."""
+
+    __slots__ = ("lo", "hi")
+    __array_ufunc__ = None  # ndarray (op) Iv defers to Iv's reflected operator
+
+    def __init__(self, lo, hi=None):
+        self.lo = np.asarray(lo, dtype=float)
+        self.hi = self.lo if hi is None else np.asarray(hi, dtype=float)
+
+    # -- helpers --------------------------------------------------------------------------------
+    @staticmethod
+    def lift(x) -> "Iv":
+        """An Iv from an Iv or an exact float / float array (a point interval)."""
+        return x if isinstance(x, Iv) else Iv(x)
+
+    def mag(self):
+        """max |x| over the interval."""
+        return np.maximum(np.abs(self.lo), np.abs(self.hi))
+
+    def mig(self):
+        """min |x| over the interval."""
+        return np.where((self.lo <= 0) & (self.hi >= 0), 0.0, np.minimum(np.abs(self.lo), np.abs(self.hi)))
+
+    def mid_float(self) -> float:
+        """The midpoint of a scalar interval, as a float."""
+        return float(0.5 * (self.lo + self.hi))
+
+    def __repr__(self):
+        return f"Iv({self.lo!r}, {self.hi!r})"
+
+    # -- arithmetic -----------------------------------------------------------------------------
+    def __neg__(self):
+        return Iv(-self.hi, -self.lo)
+
+    def __add__(self, o):
+        if isinstance(o, Dual):
+            return o + self
+        o = Iv.lift(o)
+        return Iv(_dn(self.lo + o.lo), _up(self.hi + o.hi))
+
+    __radd__ = __add__
+
+    def __sub__(self, o):
+        if isinstance(o, Dual):
+            return -o + self
+        o = Iv.lift(o)
+        return Iv(_dn(self.lo - o.hi), _up(self.hi - o.lo))
+
+    def __rsub__(self, o):
+        return Iv.lift(o) - self
+
+    def __mul__(self, o):
+        if isinstance(o, Dual):
+            return o * self
+        o = Iv.lift(o)
+        with np.errstate(invalid="ignore"):
+            p = [self.lo * o.lo, self.lo * o.hi, self.hi * o.lo, self.hi * o.hi]
+        p = [np.where(np.isnan(q), 0.0, q) for q in p]  # 0 * inf: 0 times an unbounded real
+        return Iv(_dn(np.minimum(np.minimum(p[0], p[1]), np.minimum(p[2], p[3]))),
+                  _up(np.maximum(np.maximum(p[0], p[1]), np.maximum(p[2], p[3]))))
+
+    __rmul__ = __mul__
+
+    def recip(self):
+        """1 / x; unbounded where the interval reaches 0 (only used on positive intervals)."""
+        pos = self.lo > 0
+        neg = self.hi < 0
+        with np.errstate(divide="ignore"):
+            lo = np.where(pos | neg, _dn(1.0 / np.where(pos | neg, self.hi, 1.0)), -_INF)
+            hi = np.where(pos | neg, _up(1.0 / np.where(pos | neg, self.lo, 1.0)), _INF)
+        return Iv(lo, hi)
+
+    def __truediv__(self, o):
+        return self * Iv.lift(o).recip()
+
+    def abs(self):
+        return Iv(self.mig(), self.mag())
+
+    def sign(self):
+        """sign(x): monotone, so [sign(lo), sign(hi)]."""
+        return Iv(np.sign(self.lo), np.sign(self.hi))
+
+    def sq(self):
+        m, M = self.mig(), self.mag()
+        return Iv(_dn(m * m), _up(M * M))
+
+    def pabs(self, e: Exp):
+        """|x| ** p for p in e (any sign of p; |x| ** 0 = 1, also at x = 0)."""
+        if e.is_exactly(1.0):
+            return self.abs()
+        if e.is_exactly(0.0):
+            return Iv(np.ones(np.shape(self.lo)))
+        m, M = self.mig(), self.mag()
+        if e.lo >= 0:
+            return Iv(_pow_pos(m, e, True), _pow_pos(M, e, False))
+        if e.hi <= 0:  # decreasing in |x|
+            return Iv(_pow_pos(M, e, True), _pow_pos(m, e, False))
+        lo = np.minimum(_pow_pos(m, e, True), _pow_pos(M, e, True))
+        return Iv(lo, np.maximum(_pow_pos(m, e, False), _pow_pos(M, e, False)))
+
+    def sig(self, e: Exp):
+        """sig(x, p) = |x|^p sign(x) for p in e, p > 0: increasing in x, so bounded at the ends."""
+        if e.is_exactly(1.0):
+            return self
+        return Iv(_sig_end(self.lo, e, True), _sig_end(self.hi, e, False))
+
+    def hull(self, o: "Iv") -> "Iv":
+        return Iv(np.minimum(self.lo, o.lo), np.maximum(self.hi, o.hi))
+
+
+def _sig_end(x, e: Exp, lower: bool):
+    """A lower (upper) bound on sig(x, p), p in e > 0, at the array of floats x."""
+    ax = np.abs(x)
+    # for x >= 0 sig = |x|^p: its lower bound; for x < 0 sig = -|x|^p: minus the upper bound of |x|^p
+    pos = _pow_pos(ax, e, lower)
+    neg = -_pow_pos(ax, e, not lower)
+    return np.where(x >= 0, pos, neg)
+
+
+class Dual:
+    """An interval ``v`` with the enclosure ``g`` (list of Iv, one per box coordinate) of its gradient."""
+
+    __slots__ = ("v", "g")
+    __array_ufunc__ = None
+
+    def __init__(self, v: Iv, g: list):
+        self.v, self.g = v, g
+
+    @staticmethod
+    def lift(x, d: int) -> "Dual":
+        if isinstance(x, Dual):
+            return x
+        return Dual(Iv.lift(x), [None] * d)  # None: a zero gradient component
+
+    def __neg__(self):
+        return Dual(-self.v, [None if g is None else -g for g in self.g])
+
+    def __add__(self, o):
+        if not isinstance(o, Dual):
+            return Dual(self.v + o, self.g)
+        return Dual(self.v + o.v, [_gadd(a, b) for a, b in zip(self.g, o.g)])
+
+    __radd__ = __add__
+
+    def __sub__(self, o):
+        return self + (-o if isinstance(o, Dual) else -Iv.lift(o))
+
+    def __rsub__(self, o):
+        return (-self) + o
+
+    def __mul__(self, o):
+        if not isinstance(o, Dual):
+            o = Iv.lift(o)
+            return Dual(self.v * o, [None if g is None else g * o for g in self.g])
+        return Dual(self.v * o.v, [_gadd(None if a is None else a * o.v, None if b is None else b * self.v)
+                                   for a, b in zip(self.g, o.g)])
+
+    __rmul__ = __mul__
+
+    def _chain(self, v: Iv, dfdx: Iv) -> "Dual":
+        return Dual(v, [None if g is None else dfdx * g for g in self.g])
+
+    def recip(self):
+        r = self.v.recip()
+        return self._chain(r, -(r * r))
+
+    def __truediv__(self, o):
+        return self * (o.recip() if isinstance(o, Dual) else Iv.lift(o).recip())
+
+    def abs(self):
+        return self._chain(self.v.abs(), self.v.sign())
+
+    def sq(self):
+        return self._chain(self.v.sq(), 2.0 * self.v)
+
+    def pabs(self, e: Exp):
+        """|x|^p: derivative p |x|^(p-1) sign(x)."""
+        if e.is_exactly(0.0):
+            return Dual(self.v.pabs(e), [None] * len(self.g))
+        return self._chain(self.v.pabs(e), e.iv() * self.v.pabs(minus_one(e)) * self.v.sign())
+
+    def sig(self, e: Exp):
+        """sig(x, p): derivative p |x|^(p-1)."""
+        if e.is_exactly(1.0):
+            return self
+        return self._chain(self.v.sig(e), e.iv() * self.v.pabs(minus_one(e)))
+
+
+def minus_one(e: Exp) -> Exp:
+    """e - 1; exact for a point exponent in [0.5, 2] (Sterbenz), outward-rounded otherwise."""
+    if e.lo == e.hi and 0.5 <= e.lo <= 2.0:
+        return Exp(e.lo - 1.0)
+    d = Iv(e.lo, e.hi) - 1.0
+    return Exp(d.lo, d.hi, e.mid - 1.0)
+
+
+def _gadd(a, b):
+    if a is None:
+        return b
+    if b is None:
+        return a
+    return a + b
