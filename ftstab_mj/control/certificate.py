@@ -30,7 +30,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from ftstab_mj.control.hong import HongController
-from ftstab_mj.control.hong_terms import SimplifiedTerms, Terms
+from ftstab_mj.control.hong_terms import SLOTS, SimplifiedTerms, Terms
 from ftstab_mj.control.interval import Dual, Iv, _up
 from ftstab_mj.errors import ParameterError
 
@@ -139,33 +139,73 @@ class _Ratio:
             return self._ratio(*self.t.evaluate([Iv(z[:, i]) for i in range(self.r)])[:3])
 
     def boxes(self, face: int, lo, hi):
-        """Bounds over boxes of face ``face``: lo, hi (n, r - 1) box coordinates (the z_i, i != face).
+        """Bounds over boxes of face ``face``: lo, hi (n, r - 1) box coordinates (the s_i, i != face).
 
         Returns (upper bound of R on each box (n,), coordinate to split (n,), guaranteed lower bound
-        of R at each centre (n,), centres as states (n, r)).
+        of R at each centre (n,), centres (n, r)).
+
+        The upper bound is the smaller of the interval enclosure and the mean-value form
+        R(c) + sum_j max|dR/dx_j| |x_j - c_j|. Where a box comes within its width of the zero of one
+        of the small-exponent factors phi = |x|^e (Terms.evaluate), R is a smooth function F(s, phi)
+        of s and of phi taken as an extra, independent variable over its range on the box: the
+        mean-value form of F (a valid bound on R, since phi(s) stays in that range) still converges
+        where dphi/ds is unbounded.
         """
-        d = self.r - 1
+        d, r = self.r - 1, self.r
+        m = SLOTS * max(0, r - 1)  # extra variables: the factor slots of Terms.evaluate
         n = len(lo)
         mid = 0.5 * (lo + hi)
         zc = np.insert(mid, face, 1.0, axis=1)
+        extra = {}
+
+        def box_factor(slot, x, e, op):
+            if op == "value":
+                val, near = e
+                chain = Dual(val, x.g) if isinstance(x, Dual) else val
+            else:
+                chain = x.sig(e) if op == "sig" else x.pabs(e)
+                if e.hi >= 1.0 or not isinstance(x, Dual):
+                    return chain
+                val, near = chain.v, x.v.mig() < x.v.hi - x.v.lo
+            if not isinstance(chain, Dual) or not near.any():
+                return chain
+            keep = ~near
+            g = [None if gg is None else Iv(np.where(keep, gg.lo, 0.0), np.where(keep, gg.hi, 0.0)) for gg in chain.g]
+            g[d + slot] = Iv(np.where(near, 1.0, 0.0))
+            centre = 0.5 * (val.lo + val.hi)
+            extra[slot] = (near, centre, _up(np.maximum(_up(val.hi - centre), _up(centre - val.lo))))
+            return Dual(val, g)
+
+        def centre_factor(slot, x, e, op):
+            val = e[0] if op == "value" else x.sig(e) if op == "sig" else x.pabs(e)
+            if slot not in extra:
+                return val
+            near, centre, _ = extra[slot]
+            return Iv(np.where(near, centre, val.lo), np.where(near, centre, val.hi))
+
         with np.errstate(all="ignore"):
-            zs, m = [], 0
-            for i in range(self.r):
+            zs, j = [], 0
+            for i in range(r):
                 if i == face:
                     zs.append(Iv(1.0))
                 else:
-                    zs.append(Dual(Iv(lo[:, m], hi[:, m]), [Iv(1.0) if mm == m else None for mm in range(d)]))
-                    m += 1
-            R = self._ratio(*self.t.evaluate(zs)[:3])
-            Rc = self.points(zc)
+                    zs.append(Dual(Iv(lo[:, j], hi[:, j]), [Iv(1.0) if jj == j else None for jj in range(d + m)]))
+                    j += 1
+            R = self._ratio(*self.t.evaluate(zs, box_factor)[:3])
+            Rc = self.points(zc)  # R at the centres: a witness candidate
+            Fc = self._ratio(*self.t.evaluate([Iv(zc[:, i]) for i in range(r)], centre_factor)[:3]) if extra else Rc
             rad = _up(np.maximum(_up(hi - mid), _up(mid - lo)))
-            mv = Rc.hi.copy()
+            mv = Fc.hi.copy()
             score = np.zeros((n, d))
-            for j, g in enumerate(R.g):
-                if g is not None:
-                    term = _up(g.mag() * rad[:, j])
-                    mv = _up(mv + term)
-                    score[:, j] = term
+            for jj, g in enumerate(R.g):
+                if g is None:
+                    continue
+                if jj < d:
+                    term = _up(g.mag() * rad[:, jj])
+                    score[:, jj] = term
+                else:
+                    term = _up(g.mag() * extra[jj - d][2]) if jj - d in extra else 0.0
+                mv = _up(mv + term)
         ub = np.fmin(R.v.hi, mv)
         ub = np.where(np.isnan(ub), np.inf, ub)
         # split where the mean-value form says the enclosure is widest; where it is unbounded
@@ -197,10 +237,16 @@ def _seed_points(obj: _Ratio, samples: int, rng) -> np.ndarray:
     z = np.concatenate(pts)
     f = obj.floats(z)
     top = np.argsort(f)[-min(32, len(f)):]
-    z, f = z[top], f[top]
-    on_face = np.isclose(np.abs(z), 1.0)
-    for it in range(80):
-        step = 0.3 * 0.85 ** it
+    return _climb(obj, z[top], rng)
+
+
+def _climb(obj: _Ratio, z, rng, rounds=80, step0=0.3):
+    """Local random search for larger float R from the rows of z (n, r), staying on their faces."""
+    z = z.copy()
+    f = obj.floats(z)
+    on_face = np.abs(z) == 1.0
+    for it in range(rounds):
+        step = step0 * 0.85 ** it
         cand = np.clip(z + step * rng.standard_normal(z.shape) * np.maximum(np.abs(z), 1e-6), -1.0, 1.0)
         cand[on_face] = z[on_face]
         fc = obj.floats(cand)
@@ -209,7 +255,7 @@ def _seed_points(obj: _Ratio, samples: int, rng) -> np.ndarray:
     return z
 
 
-def _maximise(obj: _Ratio, seeds, rtol, deadline, stop_if_positive, progress=None) -> _Max:
+def _maximise(obj: _Ratio, seeds, rtol, deadline, stop_if_positive, progress=None, rng=None) -> _Max:
     """Branch and bound for max R over the r faces (see the module docstring)."""
     r, d = obj.r, obj.r - 1
     lb_seed = obj.points(seeds).lo
@@ -240,6 +286,8 @@ def _maximise(obj: _Ratio, seeds, rtol, deadline, stop_if_positive, progress=Non
 
     ub, split = evaluate(lo, hi, face)
     converged = False
+    iteration = 0
+    rng = rng if rng is not None else np.random.default_rng(0)
     while True:
         keep = ub >= best
         lo, hi, face, ub, split = lo[keep], hi[keep], face[keep], ub[keep], split[keep]
@@ -251,6 +299,15 @@ def _maximise(obj: _Ratio, seeds, rtol, deadline, stop_if_positive, progress=Non
             break
         if progress is not None:
             progress(best, top, nbox)
+        iteration += 1
+        if iteration % 25 == 0:  # climb from the centres of the best boxes: a better witness prunes more
+            cz = np.insert(0.5 * (lo + hi), 0, 0.0, axis=1)[np.argsort(ub)[-16:]]
+            cz = np.array([np.insert(np.delete(c, 0), f, 1.0) for c, f in zip(cz, face[np.argsort(ub)[-16:]])])
+            cz = _climb(obj, cz, rng, rounds=30, step0=0.05)
+            lbs = obj.points(cz).lo
+            j = int(np.nanargmax(lbs)) if np.isfinite(lbs).any() else -1
+            if j >= 0 and lbs[j] > best:
+                best, wit = float(lbs[j]), cz[j].copy()
         m = min(len(ub), max(256, min(4096, len(ub) // 4)))
         pick = np.argpartition(ub, len(ub) - m)[len(ub) - m:]
         rest = np.ones(len(ub), dtype=bool)
@@ -299,12 +356,14 @@ def certify(hong: HongController, samples: int = DEFAULT_SAMPLES, seed: int = DE
             progress(f"{what}: bound {-top if what == 'c' else top:.6g} .. {-best if what == 'c' else best:.6g}"
                      f" after {n} boxes, {time.process_time() - t0:.1f} s")
     obj = _Ratio(terms, "c")
-    mc = _maximise(obj, _seed_points(obj, samples, rng), rtol, deadline, True, say)
-    objp = _Ratio(terms, "cp")
-    mp = _maximise(objp, _seed_points(objp, samples, rng), rtol, max(deadline, time.process_time() + 1.0), False,
-                   None if say is None else (lambda b, t, n: say(b, t, n, "c'")))
+    mc = _maximise(obj, _seed_points(obj, samples, rng), rtol, deadline, True, say, rng)
     c_lower, c_upper = -mc.upper, -mc.lower
     status = CERTIFIED if c_lower > 0 else NOT_CERTIFIED if c_upper <= 0 else UNDECIDED
+    mp = None
+    if status == CERTIFIED:  # c' only matters (Theorem 3) where the certificate holds
+        objp = _Ratio(terms, "cp")
+        mp = _maximise(objp, _seed_points(objp, samples, rng), rtol, max(deadline, time.process_time() + 1.0), False,
+                       None if say is None else (lambda b, t, n: say(b, t, n, "c'")), rng)
     k = hong.k
     with np.errstate(all="ignore"):
         zw = np.array([float(x) for x in terms.z_of([float(x) for x in mc.witness])[0]])
@@ -313,11 +372,11 @@ def certify(hong: HongController, samples: int = DEFAULT_SAMPLES, seed: int = DE
             NOT_CERTIFIED: "dV1/dt >= 0 at the witness state on {V1 = 1}: no finite-time certificate for these gains",
             UNDECIDED: "the budget ran out before the bounds separated: no certificate (raise --budget)"}[status]
     return Certificate(
-        form="full", c=c_lower, alpha=(2.0 + 2.0 * k) / (2.0 + k), c_prime=mp.upper,
+        form="full", c=c_lower, alpha=(2.0 + 2.0 * k) / (2.0 + k), c_prime=mp.upper if mp else None,
         alpha_prime=1.0 - float(hong.p[hong.r - 1]) / (2.0 + k), certified=status == CERTIFIED,
         samples=samples, seed=seed, status=status, c_lower=c_lower, c_upper=c_upper,
-        c_prime_upper=mp.upper, c_prime_lower=mp.lower, witness=tuple(float(x) for x in wit),
-        boxes=mc.boxes + mp.boxes, seconds=time.process_time() - t0, note=note)
+        c_prime_upper=mp.upper if mp else None, c_prime_lower=mp.lower if mp else None,
+        witness=tuple(float(x) for x in wit), boxes=mc.boxes + (mp.boxes if mp else 0), seconds=time.process_time() - t0, note=note)
 
 
 def _check_int(name, val, lo, hi):

@@ -73,7 +73,7 @@ class Terms:
             return c.iv() if isinstance(c, Exp) else c
         return c.mid if isinstance(c, Exp) else c.mid_float()
 
-    def z_of(self, s):
+    def z_of(self, s, factor=None):
         """The state z (list of r numbers) whose recursion variables are s = (s_1..s_r) (list of r numbers).
 
         z_1 = sig(s_1, 1/beta_0) and z_i = sig(s_i + S_{i-1}, 1/beta_{i-1}): the map z -> s is a
@@ -83,6 +83,7 @@ class Terms:
         """
         fl = not any(isinstance(x, (Iv, Dual)) for x in s)
         C = lambda c: self.const(c, fl)  # noqa: E731
+        f = factor or _power
         r = self.r
         z, y, S = [None] * r, [None] * r, {}
         y[0] = s[0]
@@ -91,7 +92,7 @@ class Terms:
             S[1] = -(C(self.lb[1]) * z[0])
         for i in range(2, r + 1):
             y[i - 1] = s[i - 1] + S[i - 1]
-            z[i - 1] = _sig(y[i - 1], self.inv_beta[i - 1])
+            z[i - 1] = f(SLOTS * (i - 2) + 3, y[i - 1], self.inv_beta[i - 1], "sig")
             if i <= r - 1:
                 S[i] = -(C(self.lb[i]) * _sig(s[i - 1], self.q[i]))
         return z, y, S
@@ -109,28 +110,37 @@ class Terms:
                 S = -self.lb[i].mid_float() * _sig(si, self.q[i])
         return np.stack(s, axis=-1)
 
-    def evaluate(self, s):
-        """(V1, dV1/dt, dV1/dz_r, u0) at recursion variables s, a list of r numbers (float arrays, Iv or Dual)."""
+    def evaluate(self, s, factor=None):
+        """(V1, dV1/dt, dV1/dz_r, u0) at recursion variables s, a list of r numbers (float arrays, Iv or Dual).
+
+        factor(slot, x, e, op) -> |x|^e (op "pabs") or sig(x, e) (op "sig"), if given, computes the
+        powers whose exponent is < 1 (Hoelder but not Lipschitz where x = 0), slot
+        SLOTS * (i - 2) + j for i = 2..r: j = 0 |y_i|^(1 - 1/beta_{i-1}), 1 |s_i|^(q_i - 1),
+        2 sig(s_i, e_i) (in v_i), 3 z_i = sig(y_i, 1/beta_{i-1}); and 4 z_i - v_{i-1} (op "value",
+        see _diff). The B&B treats them as variables of their own near their singularity (certificate.py).
+        """
+        f = factor or _power
         r, fl = self.r, not any(isinstance(x, (Iv, Dual)) for x in s)
         C = lambda c: self.const(c, fl)  # noqa: E731
-        z, y, S = self.z_of(s)
+        z, y, S = self.z_of(s, f)
         v, D = {}, {}
         v[1] = -(C(self.l[0]) * s[0])
         if r >= 2:
             D[1] = -(C(self.lb[1]) * z[1])
         for i in range(2, r + 1):
-            v[i] = -(C(self.l[i - 1]) * _sig(s[i - 1], self.e[i]))
+            b = SLOTS * (i - 2)
+            v[i] = -(C(self.l[i - 1]) * f(b + 2, s[i - 1], self.e[i], "sig"))
             if i <= r - 1:
                 # beta_{i-1} |z_i|^(beta_{i-1} - 1) = beta_{i-1} |y_i|^(1 - 1/beta_{i-1})
-                ds = C(self.beta[i - 1]) * _pabs(y[i - 1], self.one_m_inv_beta[i - 1]) * z[i] - D[i - 1]
-                D[i] = -(C(self.lb[i]) * C(self.q[i]) * _pabs(s[i - 1], self.q_m1[i]) * ds)
+                ds = C(self.beta[i - 1]) * f(b, y[i - 1], self.one_m_inv_beta[i - 1], "pabs") * z[i] - D[i - 1]
+                D[i] = -(C(self.lb[i]) * C(self.q[i]) * f(b + 1, s[i - 1], self.q_m1[i], "pabs") * ds)
         u0 = v[r]
         zdot = list(z[1:]) + [u0]
         # W(z_1, 0, beta_0) = |z_1|^(beta_0 + 1)/(beta_0 + 1) = |s_1|^(1 + 1/beta_0)/(beta_0 + 1)
         V = _pabs(s[0], self.one_p_inv_beta[0]) * C(self.inv_beta_p1[0])
         dV = s[0] * zdot[0]
         for j in range(2, r + 1):
-            diff = self._diff(z[j - 1], v[j - 1], y[j - 1], S[j - 1], s[j - 1], j - 1, fl)
+            diff = self._diff(z[j - 1], v[j - 1], y[j - 1], S[j - 1], s[j - 1], j - 1, fl, f, SLOTS * (j - 2) + 4)
             V = V + self._W(z[j - 1], v[j - 1], S[j - 1], s[j - 1], diff, j - 1, fl)
             dV = dV + s[j - 1] * zdot[j - 1] - diff * D[j - 1]
         return V, dV, s[r - 1], u0
@@ -140,20 +150,29 @@ class Terms:
         s = self.s_of(z)
         return self.evaluate([s[:, i] for i in range(self.r)])
 
-    def _diff(self, z, a, y, S, s, b_index, fl):
-        """z_j - v_{j-1} = sig(y, rho) - sig(S, rho) with rho = 1/beta_{j-1} and y - S = s:
-        s times the mean of rho |xi|^(rho-1) over xi between S and y (exactly s at k = 0),
-        intersected with the plain difference z - a."""
+    def _diff(self, z, a, y, S, s, b_index, fl, f, slot):
+        """z_j - v_{j-1} = sig(y, rho) - sig(S, rho) with rho = 1/beta_{j-1} <= 1 and y - S = s.
+
+        Enclosed by the intersection of: the plain difference z - a; s times the mean of
+        rho |xi|^(rho-1) over xi between S and y (exactly s at k = 0); and, since sig(., rho) is
+        increasing and Hoelder, a value of the sign of s with modulus <= 2^(1-rho) |s|^rho.
+        Handed to ``f`` as slot ``slot`` (op "value") with the mask of boxes near its singularity.
+        """
         plain = z - a
         if fl:
             return plain
-        rho_m1 = minus_one(self.inv_beta[b_index])
+        rho = self.inv_beta[b_index]
         hull = _val(y).hull(_val(S))
-        factor = self.inv_beta[b_index].iv() * hull.pabs(rho_m1)
-        tight = _val(s) * factor
+        sv = _val(s)
+        tight = sv * (rho.iv() * hull.pabs(minus_one(rho)))
         v = _val(plain)
-        val = Iv(np.maximum(v.lo, tight.lo), np.minimum(v.hi, tight.hi))
-        return Dual(val, plain.g) if isinstance(plain, Dual) else val
+        lo, hi = np.maximum(v.lo, tight.lo), np.minimum(v.hi, tight.hi)
+        if rho.lo < 1.0:
+            h = sv.sig(rho) * Iv(2.0).pabs(Exp.of(1.0 - rho.iv()))
+            lo, hi = np.maximum(lo, np.minimum(h.lo, 0.0)), np.minimum(hi, np.maximum(h.hi, 0.0))
+        val = Iv(lo, hi)
+        near = (hull.mig() < hull.hi - hull.lo) if rho.lo < 1.0 else np.zeros(np.shape(lo), dtype=bool)
+        return f(slot, plain, (val, near), "value")
 
     def _W(self, z, a, S, s, diff, b_index, fl):
         """W(z, a, beta_b) with S = sig(a, beta_b), s = sig(z, beta_b) - S (its dW/dz), diff = z - a.
@@ -198,6 +217,16 @@ def _W_corners(z: Iv, a: Iv, b, bp1, inv_bp1) -> Iv:
 
 def _val(x) -> Iv:
     return x.v if isinstance(x, Dual) else Iv.lift(x)
+
+
+SLOTS = 5  # quantities per level i that Terms.evaluate hands to its ``factor`` argument
+
+
+def _power(slot, x, e, op: str):
+    """The default ``factor`` of Terms.evaluate: the power itself (op "value": e = (enclosure, mask))."""
+    if op == "value":
+        return Dual(e[0], x.g) if isinstance(x, Dual) else e[0]
+    return _sig(x, e) if op == "sig" else _pabs(x, e)
 
 
 def _sig(x, e: Exp):
