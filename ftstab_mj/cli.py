@@ -24,30 +24,110 @@ class _Parser(argparse.ArgumentParser):
 
 def _gains(text: str) -> tuple[float, ...]:
     try:
-        return tuple(float(x) for x in text.split(","))
+        gains = tuple(float(x) for x in text.split(","))
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected comma-separated numbers like 1,2, got {text!r}") from None
+    for i, g in enumerate(gains):
+        if not GAIN_MIN <= g <= GAIN_MAX:  # also refuses nan and inf
+            raise argparse.ArgumentTypeError(f"expected every gain in [{GAIN_MIN:g}, {GAIN_MAX:g}], "
+                                             f"found l_{i + 1} = {g!r}")
+    return gains
+
+
+GAIN_MIN, GAIN_MAX = 1e-3, 1e6  # certify/design: gains the interval bounds stay meaningful for
+
+
+def _number_in(lo, hi, kind=float, what=""):
+    """An argparse type: a number of ``kind`` in [lo, hi] (inclusive), with a one-line error."""
+    def parse(text):
+        try:
+            x = kind(text)
+        except ValueError:
+            x = None
+        if x is None or not lo <= x <= hi:
+            fmt = str if kind is int else (lambda v: f"{v:g}")
+            raise argparse.ArgumentTypeError(f"expected {'an integer' if kind is int else 'a number'} in "
+                                             f"[{fmt(lo)}, {fmt(hi)}]{what}, got {text!r}")
+        return x
+    return parse
+
+
+def _json_safe(x):
+    """Non-finite floats as null (strict JSON), recursively."""
+    if isinstance(x, float):
+        return x if x == x and abs(x) != float("inf") else None
+    if isinstance(x, dict):
+        return {k: _json_safe(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_json_safe(v) for v in x]
+    return x
+
+
+def _progress_line():
+    """A callback that rewrites one status line on stderr when it is a terminal (else None)."""
+    if not sys.stderr.isatty():
+        return None
+
+    def say(text):
+        print(f"\r\033[K{text}", end="", file=sys.stderr, flush=True)
+    return say
+
+
+def _end_progress(say):
+    if say is not None:
+        print("\r\033[K", end="", file=sys.stderr, flush=True)
 
 
 def cmd_certify(args) -> int:
     from ftstab_mj.control import HongController, certify
 
     hong = HongController(args.r, args.k, args.gains, form=args.form)
-    cert = certify(hong, samples=args.samples, seed=args.seed)
+    say = None if args.json else _progress_line()
+    inner, outer = args.region
+    try:
+        cert = certify(hong, samples=args.samples, seed=args.seed, budget=args.budget, progress=say,
+                       region_radius=outer, region_inner=inner)
+    finally:
+        _end_progress(say)
     if args.json:
-        print(json.dumps(cert.to_dict(), indent=2))
+        d = cert.to_dict()
+        d["gap"] = cert.gap
+        print(json.dumps(_json_safe(d), indent=2, allow_nan=False))
         return 0
-    print(f"form {cert.form}, r = {hong.r}, k = {hong.k:g}, gains = {', '.join(f'{g:g}' for g in hong.gains)}")
-    if cert.form == "full":
-        print(f"  c       = {cert.c:.6g}    alpha  = {cert.alpha:.6g}   (dV1/dt <= -c V1^alpha)")
-        print(f"  c'      = {cert.c_prime:.6g}    alpha' = {cert.alpha_prime:.6g}   (|dV1/dz_r| <= c' V1^alpha')")
-    else:
-        print(f"  max dV1/dt on |z_i| <= {cert.region_radius:g}: {cert.region_max_dV1dt:.6g}"
-              f" ({'negative' if cert.region_negative else 'NOT negative'} on the region)")
-    print(f"  certified: {'yes' if cert.certified else 'no'}   ({cert.samples} samples, seed {cert.seed})")
-    if cert.note:
-        print(f"  note: {cert.note}")
+    print(_certificate_text(hong, cert))
     return 0
+
+
+def _certificate_text(hong, cert) -> str:
+    lines = [f"form {cert.form}, r = {hong.r}, k = {hong.k:g}, gains = {', '.join(f'{g:g}' for g in hong.gains)}"]
+    if cert.form == "full":
+        gap = f"gap {100 * cert.gap:.2g} %" if cert.gap is not None and cert.gap == cert.gap else "no lower bound"
+        lines.append(f"  status: {cert.status}   (c_lower > 0 proven: certified; a state with dV1/dt >= 0: not certified)")
+        lines.append(f"  c       = {cert.c_lower:.6g}    (guaranteed: c >= c_lower; best witness c <= {cert.c_upper:.6g}, "
+                     f"{gap})   alpha  = {cert.alpha:.6g}   (dV1/dt <= -c V1^alpha)")
+        if cert.c_prime_upper is not None:
+            lines.append(f"  c'      = {cert.c_prime_upper:.6g}    (guaranteed upper bound)   alpha' = {cert.alpha_prime:.6g}"
+                         f"   (|dV1/dz_r| <= c' V1^alpha')")
+        lines.append(f"  witness on V1 = 1: z = ({', '.join(f'{x:.6g}' for x in cert.witness)})")
+    else:
+        neg = {True: "negative (proven)", False: "NOT negative (witness below)", None: "undecided"}[cert.region_negative]
+        lines.append(f"  dV1/dt on {cert.region_inner:g} <= |z|_inf <= {cert.region_radius:g}: {neg}")
+        if cert.witness is not None:
+            lines.append(f"  witness: z = ({', '.join(f'{x:.6g}' for x in cert.witness)}), dV1/dt >= {cert.region_max_dV1dt:.6g}")
+    lines.append(f"  {cert.boxes} boxes, {cert.seconds:.2f} s CPU (witness search: {cert.samples} samples, seed {cert.seed})")
+    if cert.note:
+        lines.append(f"  note: {cert.note}")
+    return "\n".join(lines)
+
+
+def _region(text: str):
+    try:
+        inner, outer = (float(x) for x in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected R_IN,R_OUT (two numbers), got {text!r}") from None
+    if not (0 < inner < outer <= 1e6):
+        raise argparse.ArgumentTypeError(f"expected 0 < R_IN < R_OUT <= 1e6, got {text!r}")
+    return inner, outer
 
 
 def _read_log(path):
@@ -70,18 +150,22 @@ def _replayed_metrics(log):
 
 
 def cmd_replay(args) -> int:
-    from ftstab_mj.metrics import format_table
+    from ftstab_mj.metrics import CERTIFICATE_DERIVED, format_table
 
     log = _read_log(args.log)
     metrics = _replayed_metrics(log)
-    diff = []
+    diff, derived = [], []
     if log.recorded and log.recorded.get("metrics"):  # a failed run records its status without metrics
         from ftstab_mj.keypath import flatten
 
         rec, now = flatten(log.recorded["metrics"]), flatten(metrics)
         # a metric the recording version did not compute yet (an older log) is not a difference
-        diff = [f"  {k}: recorded {rec.get(k)!r}, recomputed {now.get(k)!r}"
-                for k in sorted(rec) if rec.get(k) != now.get(k)]
+        changed = [k for k in sorted(rec) if rec.get(k) != now.get(k)]
+        # nor one derived from the certificate in a log recorded with the sampled estimate of c
+        old_cert = {name for name, m in log.recorded["metrics"].get("loops", {}).items() if "certificate" not in m}
+        derived = [k for k in changed if k.split(".")[0] == "loops" and k.split(".")[1] in old_cert
+                   and k.split(".")[2] in CERTIFICATE_DERIVED]
+        diff = [f"  {k}: recorded {rec.get(k)!r}, recomputed {now.get(k)!r}" for k in changed if k not in derived]
     if args.rrd:
         from ftstab_mj.logs.rerun_sink import write_rrd
 
@@ -100,7 +184,10 @@ def cmd_replay(args) -> int:
         elif not log.recorded.get("metrics"):
             print(f"recorded metrics: none (run {log.recorded['status']}: {log.recorded.get('message', '')})")
         elif not diff:
-            print("recorded metrics: identical to the ones recomputed from the samples")
+            print("recorded metrics: identical to the ones recomputed from the samples"
+                  + (f", except {len(derived)} derived from the certificate, which this log recorded with a "
+                     f"sampled estimate of c (recomputed with the guaranteed c_lower): {', '.join(derived)}"
+                     if derived else ""))
         if args.rrd:
             print(f"wrote {args.rrd}")
     failed = False
@@ -383,16 +470,28 @@ def build_parser() -> argparse.ArgumentParser:
         "Testbed for the finite-time robust and adaptive controllers of Harmouche, Laghrouche and "
         "Chitour on MuJoCo plants."))
     sub = p.add_subparsers(dest="verb", required=True, parser_class=_Parser)
-    c = sub.add_parser("certify", help="Lyapunov certificate (c, alpha, c', alpha') of Hong's controller",
-                       description="Compute c, alpha (dV1/dt <= -c V1^alpha) and c', alpha' "
-                                   "(|dV1/dz_r| <= c' V1^alpha') by sampling the unit level set of V1.")
-    c.add_argument("--r", type=int, required=True, help="chain length r >= 1")
-    c.add_argument("--k", type=float, required=True, help="homogeneity degree k <= 0")
-    c.add_argument("--gains", type=_gains, required=True, help="l_1,...,l_r (comma-separated, > 0)")
+    c = sub.add_parser("certify", help="sound Lyapunov certificate (c, alpha, c', alpha') of Hong's controller",
+                       description="Bound c (dV1/dt <= -c V1^alpha) from below and c' (|dV1/dz_r| <= c' V1^alpha') "
+                                   "from above by branch and bound with outward-rounded interval arithmetic over the "
+                                   "homogeneous unit sphere; status certified (c_lower > 0), not certified (a witness "
+                                   "state with dV1/dt >= 0) or undecided (the budget ran out). Simplified form: a "
+                                   "sound check of dV1/dt < 0 on the shell --region.")
+    c.add_argument("--r", type=_number_in(1, 8, int), required=True, help="chain length r, 1..8")
+    c.add_argument("--k", type=float, required=True, help="homogeneity degree, -1/r < k <= 0 (full form)")
+    c.add_argument("--gains", type=_gains, required=True,
+                   help=f"l_1,...,l_r (comma-separated, each in [{GAIN_MIN:g}, {GAIN_MAX:g}])")
     c.add_argument("--form", choices=("full", "simplified"), default="full")
-    c.add_argument("--samples", type=int, default=200_000, help="samples of the level set (default 200000)")
-    c.add_argument("--seed", type=int, default=0, help="seed of the sampling (default 0)")
-    c.add_argument("--json", action="store_true", help="print JSON (keys c, alpha, c_prime, alpha_prime, certified, ...)")
+    c.add_argument("--budget", type=_number_in(0.01, 86400.0, what=" seconds"), default=None, metavar="SECONDS",
+                   help="CPU seconds for the branch and bound (default: until the gap is < 0.2 %%)")
+    c.add_argument("--samples", type=_number_in(100, 10_000_000, int), default=20_000,
+                   help="states sampled by the witness search before the branch and bound, 100..1e7 (default 20000)")
+    c.add_argument("--seed", type=_number_in(0, 2 ** 63 - 1, int), default=0,
+                   help="seed of the witness search, 0..2^63-1 (default 0)")
+    c.add_argument("--region", type=_region, default=(0.01, 1.0), metavar="R_IN,R_OUT",
+                   help="simplified form: the shell R_IN <= |z|_inf <= R_OUT checked (default 0.01,1)")
+    c.add_argument("--json", action="store_true",
+                   help="print JSON: c (= c_lower), alpha, c_prime (= c_prime_upper), alpha_prime, certified, "
+                        "c_lower, c_upper, c_prime_upper, witness, status, gap, ...")
     c.set_defaults(func=cmd_certify)
 
     rp = sub.add_parser("replay", help="recompute the metrics of a run from its MCAP log",

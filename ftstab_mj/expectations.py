@@ -148,7 +148,7 @@ CHATTER_RTOL = 0.25  # amplitudes of the chattering band (final accuracy, chatte
 TIMING_PERIODS = 2  # settling / entry times: one period of metric resolution + one of sample phase
 INTEGRAL_RTOL = 1e-3  # effort integrals (dominated by the smooth transient)
 CLOSED_FORM_RTOL = 1e-9  # closed-form values (V1 of z0) and exact copies
-CERTIFICATE_RTOL = 1e-6  # values from the seeded certificate (c, c'): last digits may move with NumPy
+CERTIFICATE_RTOL = 1e-6  # values from the certificate (c_lower, c'): deterministic, last digits may move with NumPy
 
 
 def _tol(value, **tol):
@@ -192,6 +192,9 @@ def pin_loop(m: dict, period: float, rate: float | None) -> dict:
         out["u_needed"] = _tol(m["u_needed"], rtol=CERTIFICATE_RTOL)  # a seeded sampled sup, like c
         out["estimation_error_max"] = _tol(m["estimation_error_max"], rtol=CHATTER_RTOL, atol=1e-12)
         out["time_saturated"] = _tol(m["time_saturated"], atol=dt)
+    cert = m.get("certificate")
+    if cert:
+        out["certificate"] = {"status": cert["status"], "c_lower": _tol(cert["c_lower"], rtol=CERTIFICATE_RTOL)}
     th = m.get("theorem3")
     if th:
         out["theorem3"] = {k: (_tol(th[k], rtol=CERTIFICATE_RTOL) if k in ("Phibar", "Delta", "phi_hat_limsup")

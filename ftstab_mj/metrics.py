@@ -18,7 +18,6 @@ them: non-finite entries count as NaN, so a live run and its replay give identic
 from __future__ import annotations
 
 import math
-from functools import lru_cache
 
 import numpy as np
 
@@ -31,12 +30,31 @@ def _num(x):
     return x if math.isfinite(x) else None
 
 
-@lru_cache(maxsize=64)
 def _certificate(r: int, k: float, gains: tuple, form: str):
-    """certify() of Hong's controller, cached by its parameters (it costs ~0.1 s)."""
-    from ftstab_mj.control import HongController, certify
+    """certify() of Hong's controller, computed once per parameter set (ftstab_mj.certificate_cache)."""
+    from ftstab_mj.certificate_cache import cached_certify
 
-    return certify(HongController(r, k, gains, form=form))
+    return cached_certify(r, k, gains, form)
+
+
+# Metrics that depend on the certificate. Logs recorded before the sound certificate (their loop
+# metrics have no "certificate" entry) used a sampled estimate of c: replay explains, not fails, there.
+CERTIFICATE_DERIVED = ("time_bound", "bound_applies", "beat_bound", "theorem3")
+CERTIFICATE_METHOD = "interval branch and bound"
+
+
+def certificate_summary(loop):
+    """The loop's certificate as logged: {"method", "status", "c_lower", "c_upper", "c_prime_upper"}
+    (None for a law not built on Hong's controller)."""
+    if not loop.hong:
+        return None
+    cert = loop_certificate(loop)
+    return {"method": CERTIFICATE_METHOD, "status": cert.status, "c_lower": _num_or_none(cert.c_lower),
+            "c_upper": _num_or_none(cert.c_upper), "c_prime_upper": _num_or_none(cert.c_prime_upper)}
+
+
+def _num_or_none(x):
+    return None if x is None else _num(x)
 
 
 def loop_certificate(loop):
@@ -71,10 +89,13 @@ def bound_applies(loop) -> bool:
 
     nominal: only without disturbance and with gamma = 1; robust (Theorem 2): the true bounds
     are within the assumed ones (true_phibar <= phibar, true_gamma_m >= gamma_m); adaptive: never
-    (Theorem 3 gives ultimate bounds, not a convergence time).
+    (Theorem 3 gives ultimate bounds, not a convergence time). Never without a sound certificate
+    (status "certified": c_lower > 0).
     """
     if not _is_finite_number(loop.true_phibar):
         return False  # the plant's disturbance has no bound (e.g. a damped cart): nothing is guaranteed
+    if loop.hong and not loop_certificate(loop).certified:
+        return False  # no sound certificate (not certified, or undecided): no bound is claimed
     if loop.law == "nominal":
         return loop.true_phibar == 0.0 and loop.true_gamma_m == 1.0 and loop.true_gamma_M == 1.0
     if loop.law == "robust":
@@ -314,6 +335,7 @@ def loop_metrics(info: RunInfo, loop, arrays: dict) -> dict:
         "phi_hat_max": _num(np.max(a["phi_hat"])),
         "phi_hat_final": _num(a["phi_hat"][-1]),
         "theorem3": None if left else theorem3_check(loop, V1[win], a["phi_hat"][win]),
+        "certificate": certificate_summary(loop),
     })
     if stages is not None:  # the loop's sensor, observer, actuator (records.STAGE_FIELDS)
         e_max, e_rms = estimation_error(a["z_hat"][win], a["z"][win])

@@ -159,6 +159,8 @@ def format_table(metrics: dict) -> str:
         for key, val in m.items():
             if key in ("law", "theorem3"):
                 continue
+            if key == "certificate" and val:
+                val = f"{val['status']}, c in [{_fmt(val['c_lower'])}, {_fmt(val['c_upper'])}] (guaranteed)"
             lines.append(f"  {key:<22} {_fmt(val)}")
         th = m.get("theorem3")
         if th:

@@ -25,7 +25,7 @@ state where it fails.
 from __future__ import annotations
 
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
@@ -38,6 +38,7 @@ DEFAULT_SAMPLES = 20_000  # witness search: states sampled on the faces before t
 DEFAULT_SEED = 0
 DEFAULT_RTOL = 2e-3  # relative gap c_upper - c_lower at which the B&B stops
 MAX_SAMPLES = 10_000_000
+DEFAULT_MAX_BOXES = 20_000_000  # work cap of one B&B (deterministic, unlike a time budget): ~2-3 min
 MAX_LIVE_BOXES = 2_000_000  # memory cap of the B&B (about 0.2 GB at r = 6)
 CERTIFIED, NOT_CERTIFIED, UNDECIDED = "certified", "not certified", "undecided"
 
@@ -66,7 +67,7 @@ class Certificate:
     c_prime_lower: float | None = None
     witness: tuple | None = None
     boxes: int = 0  # boxes the B&B evaluated
-    seconds: float = 0.0  # CPU time of the computation
+    seconds: float = field(default=0.0, compare=False)  # CPU time of the computation (not part of the result)
     region_radius: float | None = None  # simplified form: outer |z|_inf of the shell checked
     region_inner: float | None = None  # simplified form: inner |z|_inf of the shell
     region_max_dV1dt: float | None = None  # simplified form: guaranteed upper bound of dV1/dt there
@@ -109,6 +110,21 @@ def _onto_unit_level(hong, z):
     V = hong.V1(z)
     lam = V ** (-1.0 / hong.degree_V1)
     return hong.dilate(z, lam)
+
+
+def _refine_max(hong, f, z_best, rng, rounds=60, spread=0.2):
+    """Local random search for max f on {V1 = 1}, started from the rows of z_best (m, r): an estimate
+    from below of a maximum (loop_stages.actuator's u_needed uses it; the certificate does not)."""
+    z = z_best.copy()
+    fz = f(z)
+    scale = np.abs(z).mean(axis=0) + 1e-12
+    for it in range(rounds):
+        step = spread * (0.5 ** (it / 12.0))
+        cand = _onto_unit_level(hong, z + step * scale * rng.standard_normal(z.shape))
+        fc = f(cand)
+        better = np.isfinite(fc) & (fc > fz)
+        z[better], fz[better] = cand[better], fc[better]
+    return float(np.nanmax(fz))
 
 
 # -- the quantity maximised over the faces ----------------------------------------------------------
@@ -255,7 +271,8 @@ def _climb(obj: _Ratio, z, rng, rounds=80, step0=0.3):
     return z
 
 
-def _maximise(obj: _Ratio, seeds, rtol, deadline, stop_if_positive, progress=None, rng=None) -> _Max:
+def _maximise(obj: _Ratio, seeds, rtol, deadline, stop_if_positive, progress=None, rng=None,
+              max_boxes=DEFAULT_MAX_BOXES) -> _Max:
     """Branch and bound for max R over the r faces (see the module docstring)."""
     r, d = obj.r, obj.r - 1
     lb_seed = obj.points(seeds).lo
@@ -295,7 +312,7 @@ def _maximise(obj: _Ratio, seeds, rtol, deadline, stop_if_positive, progress=Non
         if top - best <= rtol * abs(best) or (stop_if_positive and best >= 0.0):
             converged = top - best <= rtol * abs(best)
             break
-        if time.process_time() > deadline or len(ub) > MAX_LIVE_BOXES:
+        if time.process_time() > deadline or len(ub) > MAX_LIVE_BOXES or nbox > max_boxes:
             break
         if progress is not None:
             progress(best, top, nbox)
@@ -329,11 +346,12 @@ def _maximise(obj: _Ratio, seeds, rtol, deadline, stop_if_positive, progress=Non
 
 def certify(hong: HongController, samples: int = DEFAULT_SAMPLES, seed: int = DEFAULT_SEED,
             region_radius: float = 1.0, budget: float | None = None, rtol: float = DEFAULT_RTOL,
-            region_inner: float | None = None, progress=None) -> Certificate:
+            region_inner: float | None = None, progress=None, max_boxes: int = DEFAULT_MAX_BOXES) -> Certificate:
     """The certificate of ``hong`` (see the module docstring).
 
     samples, seed: the witness search before the B&B (seeded: deterministic). budget: CPU seconds
-    (None: until the gap is within rtol). progress: called as progress(text) now and then.
+    (None: until the gap is within rtol or max_boxes boxes were evaluated). progress: called as
+    progress(text) now and then.
     Simplified form: check_region on the shell region_inner <= |z|_inf <= region_radius
     (region_inner defaults to region_radius / 100).
     """
@@ -341,6 +359,7 @@ def certify(hong: HongController, samples: int = DEFAULT_SAMPLES, seed: int = DE
     _check_int("seed", seed, 0, 2 ** 63 - 1)
     if not (isinstance(rtol, float) and 1e-9 <= rtol <= 1.0):
         raise ParameterError("rtol", "a number in [1e-9, 1]", rtol)
+    _check_int("max_boxes", max_boxes, 1, 10 ** 10)
     if budget is not None and not (np.isfinite(budget) and 0 < budget <= 86400):
         raise ParameterError("budget", "a number of seconds in (0, 86400]", budget)
     t0 = time.process_time()
@@ -356,14 +375,14 @@ def certify(hong: HongController, samples: int = DEFAULT_SAMPLES, seed: int = DE
             progress(f"{what}: bound {-top if what == 'c' else top:.6g} .. {-best if what == 'c' else best:.6g}"
                      f" after {n} boxes, {time.process_time() - t0:.1f} s")
     obj = _Ratio(terms, "c")
-    mc = _maximise(obj, _seed_points(obj, samples, rng), rtol, deadline, True, say, rng)
+    mc = _maximise(obj, _seed_points(obj, samples, rng), rtol, deadline, True, say, rng, max_boxes)
     c_lower, c_upper = -mc.upper, -mc.lower
     status = CERTIFIED if c_lower > 0 else NOT_CERTIFIED if c_upper <= 0 else UNDECIDED
     mp = None
     if status == CERTIFIED:  # c' only matters (Theorem 3) where the certificate holds
         objp = _Ratio(terms, "cp")
         mp = _maximise(objp, _seed_points(objp, samples, rng), rtol, max(deadline, time.process_time() + 1.0), False,
-                       None if say is None else (lambda b, t, n: say(b, t, n, "c'")), rng)
+                       None if say is None else (lambda b, t, n: say(b, t, n, "c'")), rng, max_boxes)
     k = hong.k
     with np.errstate(all="ignore"):
         zw = np.array([float(x) for x in terms.z_of([float(x) for x in mc.witness])[0]])

@@ -1,0 +1,102 @@
+"""The certificate of a parameter set, computed once: in this process and on disk.
+
+A run's metrics need the certificate of its controller (T(z0), Theorem 3); the branch and bound
+costs from 0.01 s to minutes, and the same parameter sets come back in every run and sweep row.
+:func:`cached_certify` keeps each result in memory and in a JSON file named by a hash of the
+parameters and of the source of the code that computes it (so a change of that code is a new key,
+never a stale answer). The directory is ``$FTSTAB_CACHE_DIR``, else ``$XDG_CACHE_HOME/ftstab_mj``,
+else ``~/.cache/ftstab_mj``; when it cannot be written the cache is in-process only. A file that
+cannot be read back exactly (damaged, another version, another key) is ignored and recomputed.
+Only deterministic computations are cached: no time budget (the B&B stops at its gap or box cap).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import tempfile
+from pathlib import Path
+
+from ftstab_mj.control import certificate as _cert
+from ftstab_mj.control import hong as _hong
+from ftstab_mj.control import hong_terms as _terms
+from ftstab_mj.control import interval as _interval
+
+_MEMORY: dict[str, _cert.Certificate] = {}
+_CODE: str | None = None
+
+
+def code_version() -> str:
+    """A hash of the source files the certificate depends on."""
+    global _CODE
+    if _CODE is None:
+        h = hashlib.sha256()
+        for mod in (_cert, _hong, _terms, _interval):
+            h.update(Path(mod.__file__).read_bytes())
+        _CODE = h.hexdigest()[:16]
+    return _CODE
+
+
+def cache_dir() -> Path:
+    env = os.environ.get("FTSTAB_CACHE_DIR")
+    if env:
+        return Path(env)
+    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    return Path(base) / "ftstab_mj"
+
+
+def cache_key(r: int, k: float, gains: tuple, form: str) -> str:
+    ident = json.dumps({"r": int(r), "k": float(k).hex(), "gains": [float(g).hex() for g in gains], "form": form,
+                        "samples": _cert.DEFAULT_SAMPLES, "seed": _cert.DEFAULT_SEED, "rtol": _cert.DEFAULT_RTOL,
+                        "max_boxes": _cert.DEFAULT_MAX_BOXES, "code": code_version()}, sort_keys=True)
+    return hashlib.sha256(ident.encode()).hexdigest()[:32]
+
+
+def cached_certify(r: int, k: float, gains: tuple, form: str = "full") -> _cert.Certificate:
+    """certify(HongController(r, k, gains, form)) with the defaults, from the cache when it is there."""
+    gains = tuple(float(g) for g in gains)
+    key = cache_key(r, k, gains, form)
+    if key in _MEMORY:
+        return _MEMORY[key]
+    path = cache_dir() / f"certificate-{key}.json"
+    cert = _read(path, key)
+    if cert is None:
+        cert = _cert.certify(_hong.HongController(r, k, gains, form=form))
+        _write(path, key, cert)
+    _MEMORY[key] = cert
+    return cert
+
+
+def _read(path: Path, key: str):
+    try:
+        data = json.loads(path.read_text())
+        if data.get("key") != key:
+            return None
+        d = dict(data["certificate"])
+        d.pop("seconds", None)
+        d["witness"] = None if d["witness"] is None else tuple(d["witness"])
+        return _cert.Certificate(**d, seconds=float(data["seconds"]))
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+
+
+def _write(path: Path, key: str, cert: _cert.Certificate) -> None:
+    """Atomically (a temporary file renamed into place); silently skipped when not writable."""
+    text = json.dumps({"key": key, "certificate": cert.to_dict(), "seconds": cert.seconds})
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".certificate-", suffix=".tmp")
+    except OSError:
+        return
+    try:
+        with os.fdopen(fd, "w") as f:
+            f.write(text)
+        os.replace(tmp, path)
+    except OSError:
+        Path(tmp).unlink(missing_ok=True)
+
+
+def clear_memory() -> None:
+    """Forget the in-process copies (tests)."""
+    _MEMORY.clear()
