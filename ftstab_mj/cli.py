@@ -311,6 +311,10 @@ def cmd_run(args) -> int:
     except CallbackError as exc:  # the controller raised: not bad input, the logs are closed as "failed"
         print(f"error: run failed: {exc} (logs closed with status failed: {paths[0]}, {paths[1]})", file=sys.stderr)
         return 1
+    except MemoryError:  # the run loop closed the logs as "failed" before this came out of it
+        print(f"error: run failed: out of memory (logs closed with status failed: {paths[0]}, {paths[1]})",
+              file=sys.stderr)
+        return 1
     if args.json:
         print(json.dumps(run.metrics, indent=2))
     else:

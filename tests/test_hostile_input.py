@@ -52,6 +52,8 @@ HOSTILE = [
      "loops.cart.gain.amplitude", ["only keys that a constant signal uses"]),
     ("freq-beyond-nyquist", R2, None, ["loops.cart.disturbance.freq=600"], "loops.cart.disturbance.freq",
      ["<= 500 Hz", "alias"]),
+    ("gain-offset-1.8e308", ARM, None, ["loops.joint1.gain.offset=1.797e308"], "loops.joint1.gain.offset",
+     ["|offset| + |amplitude| <= 1e+09", "1.797e+308"]),
     ("negative-sine-amplitude", R2, None, ["loops.cart.disturbance.amplitude=-1"],
      "loops.cart.disturbance.amplitude", ["only a step's amplitude is signed"]),
     ("step-down-through-zero", R2, None, ['loops.cart.gain={kind="step", offset=1.0, amplitude=-1.5}'],
@@ -109,3 +111,26 @@ def test_theorem3_bounds_of_absurd_but_finite_parameters_are_infinite_not_an_ove
     assert math.isinf(b.Phibar) and math.isinf(b.Delta) and math.isinf(b.phi_hat_limsup)
     finite = theorem3_bounds(cert, 0.1, 1.0, 1.0, 1.0, 1.0, 1e-3)  # unchanged for ordinary values
     assert finite.Phibar == (0.1 + (1.0 * 1.0 - 1.0) ** 2 / 4.0) / 1.0
+
+
+def test_a_run_out_of_memory_mid_way_closes_its_logs_as_failed_in_one_line(tmp_path, capsys, monkeypatch):
+    """Point 2's other half: a MemoryError in the third batch (as a machine short of memory gives)
+    ends `ftstab run` with exit 1, one line, and logs that hold the first batches and say "failed"."""
+    from ftstab_mj import sim
+    from ftstab_mj.logs.reader import read_log
+
+    advance, calls = sim.Simulation.advance, []
+
+    def short_of_memory(self, n):
+        calls.append(n)
+        if len(calls) == 3:
+            raise MemoryError
+        return advance(self, n)
+
+    monkeypatch.setattr(sim.Simulation, "advance", short_of_memory)
+    code = main(["run", str(R2), "--out", str(tmp_path), "--set", "sim.duration=5"])
+    err = capsys.readouterr().err
+    assert code == 1 and err.count("\n") == 1 and "out of memory" in err and "Traceback" not in err, err
+    log = read_log(tmp_path / "cart_r2_robust.mcap")
+    assert log.recorded["status"] == "failed" and "MemoryError" in log.recorded["message"]
+    assert log.n_samples == 2 * calls[0]  # the two batches computed before the failure, nothing else

@@ -237,9 +237,11 @@ def _computed_bounds(sc: Scenario, plant, rd: _Reader) -> Scenario:
     loops = list(sc.loops)
     for i, name, bound in wanted:
         if not math.isfinite(value[(loops[i].name, bound)]):
+            why = (f"damping = {plant.damping:g}" if getattr(plant, "damping", 0) else
+                   "signals whose bounds overflow")
             raise rd.error(f"loops.{loops[i].name}.controller.{name}",
-                           "a number, since this plant's bound is infinite (damping adds -b x'/m to phi, "
-                           "unbounded without a speed limit)", f'"{COMPUTED}" with damping = {plant.damping:g}')
+                           "a number, since this plant's bound is infinite (a damped cart: damping adds -b x'/m to "
+                           "phi, unbounded without a speed limit; or signals beyond float range)", f'"{COMPUTED}" with {why}')
         loops[i] = replace(loops[i], controller=replace(loops[i].controller, **{name: value[(loops[i].name, bound)]}))
     return replace(sc, loops=tuple(loops))
 
