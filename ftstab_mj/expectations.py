@@ -22,6 +22,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from ftstab_mj import keypath
 from ftstab_mj.errors import ScenarioError
 from ftstab_mj.tomlfile import dumps, read_toml
 from ftstab_mj.validate import number_problem
@@ -65,14 +66,14 @@ def _numbers(source, path, what, x):
     """x as a list of floats (a scalar becomes a one-element list); validates the expectation."""
     items = x if isinstance(x, list) else [x]
     if not items or any(number_problem(v) for v in items):
-        raise ExpectationError(source, f"{path}.{what}", "a finite number or a list of finite numbers", _fmt(x))
+        raise ExpectationError(source, keypath.join(path, what), "a finite number or a list of finite numbers", _fmt(x))
     return [float(v) for v in items]
 
 
 def _check_spec(source: str, path: str, spec: dict, got) -> Outcome:
     unknown = sorted(set(spec) - set(SPEC_KEYS))
     if unknown:
-        raise ExpectationError(source, f"{path}.{unknown[0]}", "one of " + ", ".join(SPEC_KEYS), "an unknown key")
+        raise ExpectationError(source, keypath.join(path, unknown[0]), "one of " + ", ".join(SPEC_KEYS), "an unknown key")
     if "null" in spec:
         if spec["null"] is not True or len(spec) > 1:
             raise ExpectationError(source, f"{path}.null", "null = true alone", _fmt(spec))
@@ -125,7 +126,7 @@ def check_metrics(metrics: dict, expected: dict, source: str = "<expectations>")
 
     def walk(exp, got, path):
         for key, want in exp.items():
-            p = f"{path}.{key}" if path else key
+            p = keypath.join(path, key)
             if not isinstance(got, dict) or key not in got:
                 have = ", ".join(sorted(got)) if isinstance(got, dict) else "a value, not a table"
                 raise ExpectationError(source, p, f"a metric of the log ({have})", "no such metric")

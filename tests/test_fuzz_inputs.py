@@ -7,10 +7,13 @@ long run is ``python benchmarks/fuzz_inputs.py`` (its figures are in the README)
 
 from fuzzing import fuzz
 
+from ftstab_mj.scenario import shipped_scenarios
+
 
 def test_fuzzed_scenarios_and_overrides_keep_the_input_contract(tmp_path):
     report = fuzz(seed=20261201, cases=200, workdir=tmp_path)
     assert report.failures == []
     assert report.cases == 200
+    assert report.scenarios == {name for name, _, _ in shipped_scenarios()}  # every shipped scenario mutated
     # the cases reach both sides of the loader: refusals and runs (the seed is fixed, so are these)
     assert report.exits.get(2, 0) > 100 and report.runs >= 5

@@ -254,11 +254,11 @@ def _check_law_params(c: ControllerSpec, path: str, rd: _Reader) -> None:
             continue
         value = getattr(c, f.name)
         if f.name in required and value is None:
-            raise rd.error(f"{path}.{f.name}", f"a value for the {c.law} law ({f.metadata['doc']})",
+            raise rd.error(keypath.join(path, f.name), f"a value for the {c.law} law ({f.metadata['doc']})",
                            "nothing: the key is required")
         if f.name not in wanted and value is not None:
             need = ", ".join(sorted(wanted)) or "no law parameter"
-            raise rd.error(f"{path}.{f.name}", f"only the {c.law} law's parameters ({need})",
+            raise rd.error(keypath.join(path, f.name), f"only the {c.law} law's parameters ({need})",
                            f"{f.name} = {value!r}, a parameter of another law")
 
 
