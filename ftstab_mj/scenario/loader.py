@@ -23,7 +23,7 @@ import numpy as np
 
 from ftstab_mj import keypath
 from ftstab_mj.control import law_class
-from ftstab_mj.disturbances import KEYS_BY_KIND, Signal
+from ftstab_mj.disturbances import KEYS_BY_KIND, MAX_VALUE, Signal
 from ftstab_mj.errors import ParameterError, ScenarioError
 from ftstab_mj.scenario.schema import (
     COMPUTED, EXTERNAL_CHECKS, SIGNAL_DERIVED, ControllerSpec, LoopSpec, PlantSpec, Scenario, SensorSpec,
@@ -53,9 +53,15 @@ class _Reader(Reader):
                 raise self.error(keypath.join(path, key), f"only keys that a {kind} signal uses ("
                                  + (", ".join(("kind",) + applies)) + ")", f"{key} = {describe(value[key])}")
         try:
-            return Signal(**kw)
+            sig = Signal(**kw)
         except ParameterError as exc:
             raise self.error(keypath.join(path, exc.name), exc.allowed, describe(exc.given)) from None
+        if abs(sig.offset) + abs(sig.amplitude) > MAX_VALUE:  # the API may still drive MuJoCo to its warnings
+            key = "amplitude" if abs(sig.amplitude) > abs(sig.offset) else "offset"
+            raise self.error(keypath.join(path, key), f"|offset| + |amplitude| <= {MAX_VALUE:g} (MuJoCo treats a "
+                             "control or an acceleration beyond 1e10 as a bad state and resets the simulation)",
+                             describe(value[key]))
+        return sig
 
     def plant(self, value, path) -> PlantSpec:
         if not isinstance(value, dict):
