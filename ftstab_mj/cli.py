@@ -120,6 +120,39 @@ def _certificate_text(hong, cert) -> str:
     return "\n".join(lines)
 
 
+def cmd_design(args) -> int:
+    from ftstab_mj.control.design import design_max_c
+
+    if args.gain_max <= args.gain_min:
+        raise UsageError(f"--gain-max: expected a value above --gain-min = {args.gain_min:g}, got {args.gain_max:g}")
+    say = None if args.json else _progress_line()
+    if say:
+        say(f"designing gains for r = {args.r}, k = {args.k:g} (objective {args.objective}) ...")
+    from ftstab_mj.control.hong import validate_hong
+
+    validate_hong(args.r, args.k, (1.0,) * args.r, check_hurwitz=False)  # k's range, before any work
+    try:
+        gains, cert = design_max_c(args.r, args.k, gain_min=args.gain_min, gain_max=args.gain_max,
+                                   budget=args.budget)
+    finally:
+        _end_progress(say)
+    if args.json:
+        d = {"gains": list(gains), "certificate": None if cert is None else _json_safe({**cert.to_dict(), "gap": cert.gap})}
+        print(json.dumps(d, indent=2, allow_nan=False))
+        return 0 if cert is not None and cert.certified else 1
+    from ftstab_mj.control import HongController
+
+    print(f"design r = {args.r}, k = {args.k:g}, objective {args.objective}, gains in "
+          f"[{args.gain_min:g}, {args.gain_max:g}]")
+    if cert is None:
+        print("  no Hurwitz gain set found")
+        return 1
+    print(_certificate_text(HongController(args.r, args.k, gains), cert))
+    print("scenario snippet ([loops.<name>.controller]):")
+    print(f"  k = {args.k!r}\n  gains = [{', '.join(repr(g) for g in gains)}]")
+    return 0 if cert.certified else 1
+
+
 def _region(text: str):
     try:
         inner, outer = (float(x) for x in text.split(","))
@@ -497,6 +530,22 @@ def build_parser() -> argparse.ArgumentParser:
                    help="print JSON: c (= c_lower), alpha, c_prime (= c_prime_upper), alpha_prime, certified, "
                         "c_lower, c_upper, c_prime_upper, witness, status, gap, ...")
     c.set_defaults(func=cmd_certify)
+
+    dz = sub.add_parser("design", help="gains of Hong's controller with a sound certificate (max c_lower)",
+                        description="Search the gains l_1..l_r in [--gain-min, --gain-max] that maximise the "
+                                    "guaranteed c_lower for (r, k): a deterministic simplex search over an estimate "
+                                    "of c, then the sound certificate of the candidates. Prints the gains, their "
+                                    "certificate and a scenario snippet. Exit 0 when certified, 1 when no candidate "
+                                    "certified, 2 on bad input.")
+    dz.add_argument("--r", type=_number_in(1, 6, int), required=True, help="chain length r, 1..6")
+    dz.add_argument("--k", type=float, required=True, help="homogeneity degree, -1/r < k <= 0")
+    dz.add_argument("--objective", choices=("max-c",), default="max-c", help="what to optimise (max-c: c_lower)")
+    dz.add_argument("--gain-min", type=_number_in(GAIN_MIN, GAIN_MAX), default=0.1, help="smallest gain (default 0.1)")
+    dz.add_argument("--gain-max", type=_number_in(GAIN_MIN, GAIN_MAX), default=100.0, help="largest gain (default 100)")
+    dz.add_argument("--budget", type=_number_in(0.01, 86400.0, what=" seconds"), default=None, metavar="SECONDS",
+                    help="CPU seconds per candidate's certificate (default: until its gap is < 0.2 %%)")
+    dz.add_argument("--json", action="store_true", help="print JSON: gains and certificate")
+    dz.set_defaults(func=cmd_design)
 
     rp = sub.add_parser("replay", help="recompute the metrics of a run from its MCAP log",
                         description="Read LOG.mcap (a truncated log up to its last complete chunk), recompute "
