@@ -499,6 +499,45 @@ def cmd_montecarlo(args) -> int:
         print(f"  worst: state {w['row']}, z0 = [{', '.join(f'{x:.17g}' for x in w['z0'])}],"
               f" settle time {w['settle_time']:.6g} s, T(z0) {w['time_bound']:.6g} s")
     print(f"table: {out / 'montecarlo.parquet'}  summary: {out / 'montecarlo.json'}  figure: {out / 'montecarlo.png'}")
+
+
+def cmd_compare(args) -> int:
+    from pathlib import Path
+
+    from ftstab_mj import compare
+    from ftstab_mj.sweep.engine import execute
+    from ftstab_mj.sweep.table import write_table
+
+    cmp = compare.load_comparison(args.comparison)
+    task, items = compare.prepare(cmp, args.set)  # every row validated before any run
+    if args.workers > 1 and args.engine == "serial":
+        raise UsageError("--engine serial: expected no --workers (one process runs everything)")
+    engine = "processes" if args.workers > 1 else "serial"
+    out = Path(args.out or Path("runs") / cmp.name)
+    out.mkdir(parents=True, exist_ok=True)
+    print(f"{cmp.name}: {cmp.description}")
+    print(f"  base {cmp.scenario}, {len(cmp.laws)} laws x {max(1, len(cmp.grid))} -> {len(items)} runs -> {out}")
+    results = dict(execute(items, task, engine, args.workers))
+    rows, series = [], {}
+    for i, p in items:
+        res = results.get(i) or {"status": "lost", "error": "the worker running it died", "metrics": {}}
+        rows.append({"row": i, **compare.table_row(p, res, task.loops[0], cmp.grid_path)})
+        if res.get("series"):
+            series[p[0]] = res["series"]
+    columns = ["label"] + ([cmp.grid_path] if cmp.grid_path else []) + [
+        "status", "settle_time_z1", *[k for k in rows[0] if k.startswith("final_abs_z")], "effort_sq", "u_max_abs",
+        "chattering_tv", "chattering_du_dt_var", "chattering_zero_crossings", "chattering_band_rms", "beat_bound"]
+    print(compare.format_rows(rows, columns))
+    paths = [compare.write_csv(rows, out / f"{cmp.name}.csv"), write_table(rows, out / f"{cmp.name}.parquet")]
+    slopes = []
+    if cmp.grid_path and len(cmp.grid) >= 2:
+        slopes = compare.fit_slopes(rows, cmp.grid_path)
+        print(f"log-log slopes of max |z_i| against {cmp.grid_path} ({len(cmp.grid)} values):")
+        print(compare.format_rows(slopes, list(slopes[0])))
+        paths.append(compare.write_csv(slopes, out / f"{cmp.name}_slopes.csv"))
+    paths += compare.draw_figures(cmp, rows, slopes, series, out)
+    for path in paths:
+        print(f"wrote {path}")
     return 0
 
 
@@ -643,6 +682,26 @@ def build_parser() -> argparse.ArgumentParser:
     mc.add_argument("--out", metavar="DIR", help="output directory (default: runs/<scenario>-montecarlo)")
     mc.add_argument("--json", action="store_true", help="print the summary as JSON")
     mc.set_defaults(func=cmd_montecarlo)
+
+
+    cp = sub.add_parser(
+        "compare", help="several control laws on one base scenario, side by side (table and figures)",
+        description="Run every law of COMPARISON (whole controller tables) on its base scenario, at every "
+                    "value of its optional grid (control period or disturbance amplitude); print one table "
+                    "(laws as rows: settling time, final accuracy per z_i, effort, max |u|, chattering "
+                    "indices, bound beaten), write it to DIR/<name>.csv and .parquet, the log-log slopes "
+                    "of the accuracy against the period to DIR/<name>_slopes.csv, and the figures "
+                    "DIR/<name>_accuracy.png and DIR/<name>_time.png. Exit 0 when every run is in the "
+                    "table (a diverged run is a row with its status), 2 on bad input.",
+        epilog="example: ftstab compare scenarios/compare/cart_r2.toml --workers 2")
+    cp.add_argument("comparison", help="comparison file (.toml)")
+    cp.add_argument("--workers", type=_workers, default=1, metavar="N",
+                    help="parallel runs on a local process pool (default 1: serial; 'all': one per core)")
+    cp.add_argument("--engine", choices=("serial", "processes"), help="serial or processes (default: processes when N > 1)")
+    cp.add_argument("--out", metavar="DIR", help="output directory (default: runs/<name>)")
+    cp.add_argument("--set", action="append", default=[], metavar="KEY.PATH=VALUE",
+                    help="override a field of the base scenario for every run (repeatable), e.g. sim.duration=1")
+    cp.set_defaults(func=cmd_compare)
     return p
 
 
