@@ -7,8 +7,9 @@ can run on (native C callback where kernel.c has its twin, the Python callback a
 repetition times Simulation.advance over ``steps`` control samples (period = physics step = 1 ms,
 batches of 1000) and, right after it, mj_step(m, d, nstep) of the same compiled model with no
 callback; the table shows the median CPU-time ratio over the repetitions with its min-max, and the
-law's own cost per sample in microseconds (median of (law time - bare time) / steps). CPU time of
-this process: on a shared machine wall time mostly measures the other processes.
+extra cost per control sample in microseconds of the controlled run over bare stepping (median of
+(run time - bare time) / samples: the law plus, on the Python path, the run loop's Python callback).
+CPU time of this process: on a shared machine wall time mostly measures the other processes.
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from ftstab_mj import native  # noqa: E402
+from ftstab_mj.callback import timer_off  # noqa: E402
 from ftstab_mj.compare import load_comparison  # noqa: E402
 from ftstab_mj.plants import make_plant  # noqa: E402
 from ftstab_mj.scenario import LoopSpec  # noqa: E402
@@ -57,8 +59,10 @@ def law_run(plant, controller: dict, r: int, steps: int, use_native) -> float:
 
 
 def bare(plant, steps: int) -> float:
+    """mj_step(nstep) with no callback and, like the run loop, MuJoCo's profiling timer off."""
     m, d, _ = plant.compile(STEP)
-    return cpu(lambda: mujoco.mj_step(m, d, nstep=steps))
+    with timer_off():
+        return cpu(lambda: mujoco.mj_step(m, d, nstep=steps))
 
 
 def main(argv=None) -> int:
@@ -70,7 +74,7 @@ def main(argv=None) -> int:
     cmp = load_comparison(ROOT / "scenarios" / "compare" / f"cart_r{args.r}.toml")
     plant = make_plant("cart" if args.r == 2 else "cart_integrating")
     print(f"law costs on the cart, r = {args.r}: {args.steps} samples of 1 ms, {args.repeat} repetitions, CPU time")
-    print(f"{'law':<20} {'path':<7} {'x bare (median, min-max)':>26} {'law us/sample':>14}")
+    print(f"{'law':<32} {'path':<7} {'x bare (median, min-max)':>26} {'extra us/sample':>16}")
     for entry in cmp.laws:
         paths = [False]
         spec_law = ControllerSpec(**entry.controller).build(args.r)
@@ -84,8 +88,8 @@ def main(argv=None) -> int:
                 ratios.append(t_law / t_bare)
                 extra.append((t_law - t_bare) / args.steps * 1e6)
             med = statistics.median(ratios)
-            print(f"{entry.label:<20} {'native' if use_native else 'python':<7} "
-                  f"{med:>10.2f} ({min(ratios):.2f}-{max(ratios):.2f}){'':>6} {statistics.median(extra):>14.2f}")
+            print(f"{entry.label:<32} {'native' if use_native else 'python':<7} "
+                  f"{med:>10.2f} ({min(ratios):.2f}-{max(ratios):.2f}){'':>6} {statistics.median(extra):>16.2f}")
     return 0
 
 

@@ -18,3 +18,12 @@ def test_speed_benchmark_prints_every_ratio():
     for row in ("callback robust r=2", "callback adaptive r=3", "full run, MCAP + Rerun",
                 "whole `ftstab run` process", "ideal chain r=2, 1000 initial states"):
         assert row in out.stdout, out.stdout
+
+
+def test_law_costs_benchmark_prints_every_law_of_the_comparison():
+    out = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "law_costs.py"), "--repeat", "1", "--steps", "1000"],
+                         capture_output=True, text=True, timeout=300, cwd=ROOT)
+    assert out.returncode == 0, out.stderr
+    for row in ("robust ", "levant_qc", "levant_nested", "super_twisting", "plestan_adaptive", "linear"):
+        assert row in out.stdout, out.stdout
+    assert "python" in out.stdout and ("native" in out.stdout or not native.available())
