@@ -37,7 +37,6 @@ Bad input: one line (SweepError: file, key path, expected, found) before any run
 
 from __future__ import annotations
 
-import copy
 import csv
 import math
 import os
@@ -46,12 +45,11 @@ from pathlib import Path
 
 import numpy as np
 
+from ftstab_mj import keypath
 from ftstab_mj.errors import ScenarioError, SweepError
 from ftstab_mj.records import COMPLETED
-from ftstab_mj.scenario import apply_override, scenario_from_dict
-from ftstab_mj.scenario.loader import describe
+from ftstab_mj.scenario.loader import apply_override, describe, scenario_with
 from ftstab_mj.scenario.schema import identifier, one_line
-from ftstab_mj.sweep.runner import override_text
 from ftstab_mj.tomlfile import read_toml
 
 SERIES_POINTS = 4000  # samples kept per law for the time plot (evenly strided)
@@ -111,10 +109,15 @@ def load_comparison(path) -> Comparison:
     fixed = raw.get("set", {})
     if not isinstance(fixed, dict):
         raise _error(src, "set", "a table of key path = value", describe(fixed))
+    for k in fixed:
+        if keypath.parse(k) is None:
+            raise _error(src, f'set."{k}"', "a scenario key path like sim.duration", repr(k))
     grid = raw.get("grid", {})
     if not isinstance(grid, dict) or len(grid) > 1:
         raise _error(src, "grid", "a table with one key path = [values]", describe(grid))
     grid_path, values = next(iter(grid.items()), (None, ()))
+    if grid_path is not None and keypath.parse(grid_path) is None:
+        raise _error(src, f'grid."{grid_path}"', "a scenario key path like sim.period", repr(grid_path))
     if grid_path is not None:
         ok = isinstance(values, list) and values and all(
             isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v > 0 for v in values)
@@ -155,18 +158,14 @@ class CompareTask:
     series: bool = True
 
     def scenario(self, index, params):
+        """The validated scenario of one row: typed values set on the base (a table replaces a table)."""
         label, controller, value, _ = params
-        raw = copy.deepcopy(self.base)
-        src = f"{self.source} (row {index}: {label})"
-        where = {}
-        texts = [override_text(f"loops.{name}.controller", controller) for name in self.loops]
+        values = [(f"loops.{name}.controller", controller) for name in self.loops]
         if self.grid_path is not None:
-            texts.append(override_text(self.grid_path, value))
+            values.append((self.grid_path, value))
             if self.steps_per_period:
-                texts.append(override_text("sim.physics_step", value / self.steps_per_period))
-        for text in texts:
-            where[apply_override(raw, text, src)] = text
-        return scenario_from_dict(raw, src, where)
+                values.append(("sim.physics_step", value / self.steps_per_period))
+        return scenario_with(self.base, values, f"{self.source} (row {index}: {label})")
 
     def __call__(self, index: int, params) -> dict:
         from ftstab_mj.scenario.run import run_scenario
@@ -187,7 +186,9 @@ def prepare(cmp: Comparison, overrides=()) -> tuple[CompareTask, list]:
     scenario is validated here, before any run (a bad law table is a one-line error naming laws[i])."""
     src = str(cmp.scenario)
     raw = read_toml(cmp.scenario, "scenario file (.toml)")
-    for text in [override_text(p, v) for p, v in cmp.set] + list(overrides):
+    for path, value in cmp.set:
+        keypath.assign(raw, keypath.parse(path), value, f"{src} ({cmp.source} [set]: {path})")
+    for text in overrides:
         apply_override(raw, text, src)
     loop_names = tuple(raw.get("loops", {}))
     if cmp.loop is not None and cmp.loop not in loop_names:
