@@ -8,7 +8,7 @@ import math
 import os
 import sys
 
-from ftstab_mj.errors import CallbackError, FtstabError
+from ftstab_mj.errors import CallbackError, FtstabError, LogWriteError
 
 
 class UsageError(FtstabError, ValueError):
@@ -204,7 +204,7 @@ def cmd_replay(args) -> int:
 
         message = log.recorded.get("message", "") if log.recorded else "truncated log"
         write_rrd(args.rrd, log.info, log.loops, (log.pose_t, log.pose_pos, log.pose_quat), metrics["status"],
-                  metrics, message)
+                  metrics, message, force=args.force)
     if args.json:
         print(json.dumps(metrics, indent=2, allow_nan=False))
     else:
@@ -322,6 +322,7 @@ def cmd_run(args) -> int:
     if out.exists() and not out.is_dir():
         raise UsageError(f"--out {args.out}: expected a directory for the logs, found a file")
     from ftstab_mj.logs import McapSink, RerunSink
+    from ftstab_mj.logs.files import check_replaceable
     from ftstab_mj.metrics import format_table
 
     try:
@@ -333,12 +334,14 @@ def cmd_run(args) -> int:
         if path.is_dir() or (path.exists() and not os.access(path, os.W_OK)):
             raise UsageError(f"--out {args.out}: expected {path.name} to be a writable file, found "
                              + ("a directory" if path.is_dir() else "a read-only file"))
+        check_replaceable(path, args.force)  # a symlink or another program's file: not without --force
     say = (lambda *a, **k: None) if args.json else print  # --json: stdout carries the JSON only
     say(f"{sc.name}: {sc.description}")
     say(f"  plant {sc.plant.model}, {len(sc.loops)} loop(s) ({', '.join(lp.controller.law for lp in sc.loops)}),"
         f" {sc.sim.duration:g} s, control period {sc.sim.period * 1e3:g} ms,"
         f" physics step {sc.sim.physics_step * 1e3:g} ms ({sc.sim.integrator}), seed {sc.seed}")
-    sinks = (McapSink(paths[0]), RerunSink(paths[1]), ProgressSink(sc.name, sc.sim.duration))
+    sinks = (McapSink(paths[0], force=args.force), RerunSink(paths[1], force=args.force),
+             ProgressSink(sc.name, sc.sim.duration))
     try:
         run = run_scenario(sc, sinks)
     except CallbackError as exc:  # the controller raised: not bad input, the logs are closed as "failed"
@@ -594,6 +597,8 @@ def build_parser() -> argparse.ArgumentParser:
     rp.add_argument("log", metavar="LOG.mcap")
     rp.add_argument("--json", action="store_true", help="print the metrics as JSON")
     rp.add_argument("--rrd", metavar="OUT.rrd", help="also write a Rerun recording of the log")
+    rp.add_argument("--force", action="store_true",
+                    help="let --rrd replace a file that is not an ftstab log (or a symbolic link)")
     rp.add_argument("--verify", action="store_true",
                     help="re-run the scenario recorded in the log and check that the samples are bit-identical")
     rp.set_defaults(func=cmd_replay)
@@ -623,6 +628,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "or loops.cart.controller.gains[1]=3")
     r.add_argument("--json", action="store_true",
                    help="print the metrics as JSON (the /metrics message of the log) instead of the table")
+    r.add_argument("--force", action="store_true",
+                   help="replace DIR/<name>.mcap/.rrd even when they are not ftstab logs (another program's "
+                        "file, a symbolic link: the link is replaced, never written through)")
     r.set_defaults(func=cmd_run)
 
     ls = sub.add_parser("list", help="the shipped scenarios, the control laws and the plants",
@@ -712,6 +720,9 @@ def main(argv=None) -> int:
         try:
             args = build_parser().parse_args(argv)
             return args.func(args)
+        except LogWriteError as exc:  # a log could not be written (disk full): not bad input
+            print(f"error: {exc}", file=sys.stderr)
+            return 1
         except FtstabError as exc:  # every bad input of ours: one line, exit 2
             print(f"error: {exc}", file=sys.stderr)
             return 2

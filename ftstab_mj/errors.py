@@ -39,3 +39,12 @@ class SweepError(ScenarioError):
 
 class EngineError(FtstabError, RuntimeError):
     """The execution engine of a sweep cannot be started or reached (e.g. no Dask scheduler at an address)."""
+
+
+class LogWriteError(FtstabError, RuntimeError):
+    """A log could not be written during a run (disk full, quota, I/O error): not bad input (exit 1).
+    path: the log file; cause: what went wrong, e.g. "cannot write the MCAP log: No space left on device"."""
+
+    def __init__(self, path, cause: str):
+        self.path, self.cause = str(path), cause
+        super().__init__(f"{self.path}: {cause}")

@@ -21,18 +21,21 @@ file, so a killed run leaves every batch written before its last flush readable 
 
 from __future__ import annotations
 
+import os
 import platform
 
 import numpy as np
 import orjson
 
-from ftstab_mj.errors import LogError
+from ftstab_mj.errors import LogWriteError
+from ftstab_mj.logs.files import create_log, write_errors
 from ftstab_mj.logs.encoding import SCHEMA_NAME, LoopLayout
 from ftstab_mj.logs.mcap_file import McapFile
 from ftstab_mj.logs.scene import model_shapes
 from ftstab_mj.records import RunInfo, SampleBatch
 
 ANY_OBJECT_SCHEMA = {"type": "object"}
+WHAT = "MCAP log"
 WORLD_FRAME = "world"
 
 
@@ -102,7 +105,9 @@ def frame_transforms(t_ns: int, names, pos, quat):
 
 
 class McapSink:
-    """Writes a run to an MCAP file at ``path`` (created or overwritten at :meth:`open`).
+    """Writes a run to an MCAP file at ``path``, created at :meth:`open` without following a symlink
+    and replacing only one of our logs unless ``force`` (logs/files.py). A write error (disk full)
+    raises LogWriteError naming the file; the file is then cut back to its last complete batch.
 
     pose_rate: Hz of simulated time at which body poses go to ``/tf`` (a display rate: the loop
     samples are all logged); compression: "lz4" | "zstd" | "none", applied per chunk (= per batch);
@@ -110,18 +115,30 @@ class McapSink:
     Written with :class:`~ftstab_mj.logs.mcap_file.McapFile` (bulk message records).
     """
 
-    def __init__(self, path, pose_rate: float = 60.0, compression: str = "lz4"):
+    def __init__(self, path, pose_rate: float = 60.0, compression: str = "lz4", force: bool = False):
         self.path = str(path)
         self.pose_rate = float(pose_rate)
         self.compression = compression
+        self.force = force  # replace a file at path that is not one of our logs (logs/files.py)
         self._writer = None
         self._file = None
 
+    @write_errors(WHAT)
     def open(self, info: RunInfo) -> None:
+        self._file = create_log(self.path, self.force, WHAT)  # LogError (bad input) when refused
+        self._good = 0  # file size after the last complete flush: a failed write is cut back to it
         try:
-            self._file = open(self.path, "wb")
-        except OSError as exc:
-            raise LogError(f"{self.path}: cannot write the MCAP log ({exc.strerror})") from None
+            self._start(info)
+        except BaseException:  # no half-opened log: the file this call created goes
+            self._file.close()
+            self._writer = None
+            try:
+                os.unlink(self.path)
+            except OSError:
+                pass
+            raise
+
+    def _start(self, info: RunInfo) -> None:
         w = self._writer = McapFile(self._file, compression={"none": ""}.get(self.compression, self.compression))
         w.start(profile="", library=f"ftstab_mj {versions()['ftstab_mj']}")
         w.add_metadata("versions", versions())
@@ -144,7 +161,7 @@ class McapSink:
         run = info.to_dict()
         del run["scenario"]
         w.add_message(self._ch_run, 0, _json(run))
-        w.flush()
+        self._flush()
 
     def _foxglove_channel(self, topic: str, message_class) -> int:
         schema = message_class.get_schema()
@@ -161,7 +178,28 @@ class McapSink:
             self._loops[name] = (channel, layout)
         return self._loops[name]
 
+    def _flush(self) -> None:
+        """End the chunk; on a write error cut the file back to its last complete flush (no torn
+        record left, every earlier batch readable) and close it."""
+        try:
+            self._writer.flush()
+        except OSError:
+            self._abandon()
+            raise
+        self._good = self._file.tell()
+
+    def _abandon(self) -> None:
+        try:
+            os.ftruncate(self._file.fileno(), self._good)
+        except OSError:
+            pass  # the file stays as far as it got; the reader stops at its torn record
+        self._file.close()
+        self._writer = None
+
+    @write_errors(WHAT)
     def write(self, batch: SampleBatch) -> None:
+        if self._writer is None:
+            raise LogWriteError(self.path, f"cannot write the {WHAT}: it was abandoned after a write error")
         for name, arrays in batch.loops.items():
             if len(arrays["t"]) == 0:
                 continue
@@ -171,7 +209,7 @@ class McapSink:
         if self._ch_tf is not None and batch.body_pos.shape[1]:  # a batch may come without poses
             self._write_poses(batch)
         self._n += len(batch)
-        self._writer.flush()
+        self._flush()
 
     def _write_poses(self, batch):
         t = np.asarray(next(iter(batch.loops.values()))["t"], dtype=float)
@@ -183,11 +221,19 @@ class McapSink:
                  for i, tn in zip(idx.tolist(), times.tolist())]
         self._writer.add_messages(self._ch_tf, times, datas)
 
+    @write_errors(WHAT)
     def close(self, status: str, metrics: dict, message: str = "") -> None:
+        """Write /metrics (status, message, metrics) and the summary. After a write error the log was
+        cut back and closed: nothing more is written (it ends at its last complete batch)."""
         if self._writer is None:
             return
         t_end = int(round(self._n * self._info.period * 1e9))
         self._writer.add_message(self._ch_metrics, t_end, _json({"status": status, "message": message, "metrics": metrics}))
-        self._writer.finish()
-        self._file.close()
+        self._flush()  # /metrics is on disk before the summary, which a full disk may still refuse
+        try:
+            self._writer.finish()
+            self._file.close()
+        except OSError:
+            self._abandon()
+            raise
         self._writer = None

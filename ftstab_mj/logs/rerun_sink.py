@@ -31,14 +31,17 @@ camera known; everything logged before is buffered by Rerun and sent then.
 from __future__ import annotations
 
 import math
+import os
 
 import numpy as np
 
-from ftstab_mj.errors import LogError
+from ftstab_mj.errors import LogError, LogWriteError
+from ftstab_mj.logs.files import Pump, can_pump, create_log, write_errors
 from ftstab_mj.logs.scene import PLANE_HALF_THICKNESS, model_shapes, quat_rotate
 from ftstab_mj.records import RunInfo, SampleBatch, format_table
 
 TIMELINE = "sim_time"
+WHAT = "Rerun recording"
 APPLICATION_ID = "ftstab"
 ENVELOPE_POINTS = 400
 
@@ -168,26 +171,50 @@ def _log10(v: np.ndarray) -> np.ndarray:
 
 
 class RerunSink:
-    """Writes a run to a Rerun recording: a file at ``path`` (created or overwritten at :meth:`open`),
-    or, with ``live``, a viewer as well: "spawn" (a native viewer), "serve" (a web viewer on
-    ``web_port``, gRPC on ``grpc_port``) or a gRPC URL to connect to."""
+    """Writes a run to a Rerun recording: a file at ``path``, or, with ``live``, a viewer as well:
+    "spawn" (a native viewer), "serve" (a web viewer on ``web_port``, gRPC on ``grpc_port``) or a
+    gRPC URL to connect to.
+
+    The file is created at :meth:`open` without following a symlink and replaces only one of our
+    logs unless ``force`` (logs/files.py). Rerun's file writer writes into a pipe whose bytes this
+    sink copies into it (logs/files.py Pump): a write error (disk full, the file removed) is raised
+    here as LogWriteError naming the file, at the batch it hit, instead of stopping Rerun's writer,
+    after which Rerun waits for ever at the next flush and at the exit of the process. Without
+    /proc (not Linux) Rerun writes the file by name.
+    """
 
     def __init__(self, path, application_id: str = APPLICATION_ID, live: str | None = None,
-                 web_port: int = 9090, grpc_port: int = 9876):
+                 web_port: int = 9090, grpc_port: int = 9876, force: bool = False):
         self.path = str(path) if path is not None else None
         self.application_id = application_id
         self.live, self.web_port, self.grpc_port = live, web_port, grpc_port
+        self.force = force
         self._rec = None
+        self._pump = None
 
+    @write_errors(WHAT)
     def open(self, info: RunInfo) -> None:
+        self._info = info
+        if self.path is not None:  # our one-line errors before Rerun builds anything
+            created = create_log(self.path, self.force, WHAT)  # LogError (bad input) when refused
+            if can_pump():
+                self._pump = Pump(created)
+            else:
+                created.close()
+        try:
+            self._start(info)
+        except BaseException:  # no half-opened log: the file this call created goes
+            self._abandon()
+            if self.path is not None:
+                try:
+                    os.unlink(self.path)
+                except OSError:
+                    pass
+            raise
+
+    def _start(self, info: RunInfo) -> None:
         import rerun as rr
 
-        self._info = info
-        if self.path is not None:
-            try:  # fail with our own one-line error before Rerun builds anything
-                open(self.path, "wb").close()
-            except OSError as exc:
-                raise LogError(f"{self.path}: cannot write the Rerun recording ({exc.strerror})") from None
         rec = rr.RecordingStream(self.application_id)
         self._rec = rec
         self._attached = False
@@ -233,12 +260,32 @@ class RerunSink:
         bp = blueprint(info, eye, others)
         sinks = []
         if self.path is not None:
-            sinks.append(rr.FileSink(self.path))
+            sinks.append(rr.FileSink(self._pump.target if self._pump is not None else self.path))
         if self.live:
             sinks.append(rr.GrpcSink(start_viewer(self.live, self.grpc_port, self.web_port)))
         if sinks:
             rec.set_sinks(*sinks, default_blueprint=bp)
+        if self._pump is not None:
+            self._pump.writer_opened()
         self._attached = True
+
+    def _flush(self) -> None:
+        """Everything logged so far is in the file; raises the first write error (then abandons)."""
+        self._rec.flush()
+        error = self._pump.sync() if self._pump is not None else None
+        if error is not None:
+            self._abandon()
+            raise error
+
+    def _abandon(self) -> None:
+        """Stop writing: Rerun's writer is let go (its pipe is drained to the end, never into the
+        file after an error) and the file closed."""
+        rec, self._rec = self._rec, None
+        if rec is not None:
+            rec.disconnect()
+        pump, self._pump = self._pump, None
+        if pump is not None:
+            pump.close()
 
     def _static_bounds(self, lp, V1_0: float) -> None:
         """Settle level and Theorem 1's envelope for loop ``lp`` from its first V1 (V1_0)."""
@@ -266,10 +313,13 @@ class RerunSink:
             note = "" if bound_applies(lp) else " (the true bounds exceed the assumed ones: not a guarantee)"
             rec.log(f"{base}/V1/T_z0/note", rr.TextDocument(f"T(z0) = {T:.4g} s{note}"), static=True)
 
+    @write_errors(WHAT)
     def write(self, batch: SampleBatch) -> None:
         import rerun as rr
 
         rec = self._rec
+        if rec is None:
+            raise LogWriteError(self.path, f"cannot write the {WHAT}: it was abandoned after a write error")
         if not self._attached:
             self._attach(batch.body_pos, batch.loops)
         t = None
@@ -293,7 +343,7 @@ class RerunSink:
                 rec.send_columns(f"{base}/other", indexes=idx, columns=rr.Scalars.columns(scalars=np.hstack(others)))
         if t is not None and batch.body_pos.shape[1] > 0:
             self.write_poses(t, batch.body_pos, batch.body_quat)
-        rec.flush()
+        self._flush()
 
     def write_poses(self, t, pos, quat) -> None:
         """Body poses at times t (m,) s: pos (m, nbody, 3) m, quat (m, nbody, 4) (w, x, y, z)."""
@@ -307,6 +357,7 @@ class RerunSink:
             self._rec.send_columns(f"/world/{body}", indexes=idx, columns=rr.Transform3D.columns(
                 translation=pos[:, b], quaternion=np.column_stack([q[:, 1], q[:, 2], q[:, 3], q[:, 0]])))
 
+    @write_errors(WHAT)
     def close(self, status: str, metrics: dict, message: str = "") -> None:
         import rerun as rr
 
@@ -318,9 +369,11 @@ class RerunSink:
         if metrics:  # a failed run is closed without metrics
             text += "\n" + format_table(metrics)
         self._rec.log("/run/status", rr.TextDocument(text, media_type="text/plain"), static=True)
-        self._rec.flush()
-        self._rec.disconnect()
-        self._rec = None
+        self._flush()
+        pump = self._pump
+        self._abandon()  # the end: Rerun writes its footer and closes the pipe, the copy ends
+        if pump is not None and pump.error is not None:
+            raise pump.error
 
 
 def start_viewer(live: str, grpc_port: int, web_port: int) -> str:
@@ -358,10 +411,11 @@ def _pretty(obj) -> str:
     return json.dumps(obj, indent=2, default=str)
 
 
-def write_rrd(path, info: RunInfo, loops: dict, poses, status: str, metrics: dict, message: str = "") -> None:
+def write_rrd(path, info: RunInfo, loops: dict, poses, status: str, metrics: dict, message: str = "",
+              force: bool = False) -> None:
     """A whole recording at once (replay --rrd): loops {name: {field: array}}, poses (t, pos, quat)
-    at their own rate (see :meth:`RerunSink.write_poses`)."""
-    sink = RerunSink(path)
+    at their own rate (see :meth:`RerunSink.write_poses`); force: as for :class:`RerunSink`."""
+    sink = RerunSink(path, force=force)
     sink.open(info)
     t, pos, quat = poses
     sink._attach(pos, loops)  # the camera frames the recorded poses, the plots follow the logged fields
