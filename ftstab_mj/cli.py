@@ -342,27 +342,38 @@ def cmd_run(args) -> int:
         f" physics step {sc.sim.physics_step * 1e3:g} ms ({sc.sim.integrator}), seed {sc.seed}")
     sinks = (McapSink(paths[0], force=args.force), RerunSink(paths[1], force=args.force),
              ProgressSink(sc.name, sc.sim.duration))
-    try:
-        run = run_scenario(sc, sinks)
-    except CallbackError as exc:  # the controller raised: not bad input, the logs are closed as "failed"
-        print(f"error: run failed: {exc} (logs closed with status failed: {paths[0]}, {paths[1]})", file=sys.stderr)
-        return 1
-    except MemoryError:  # the run loop closed the logs as "failed" before this came out of it
-        print(f"error: run failed: out of memory (logs closed with status failed: {paths[0]}, {paths[1]})",
-              file=sys.stderr)
-        return 1
-    if args.json:
-        print(json.dumps(run.metrics, indent=2))
-    else:
-        print(format_table(run.metrics))
-        print(f"logs: {paths[0]}  {paths[1]}")
-    status = run.result.status
-    if status == "completed":
-        return 0
-    stop = (interrupts.last_signal() or interrupts.Interrupted()) if status == "interrupted" else None
-    print(f"error: run {stop.label if stop else status}: {run.result.message} (the logs say so and hold the "
-          "samples up to there)", file=sys.stderr)
-    return stop.exit_code if stop else 1
+
+    def logs_say(status: str) -> str:
+        """What the logs record, as far as each could be closed (never more)."""
+        closed = [str(p) for p, s in zip(paths, sinks) if s.closed_status == status]
+        cut = [str(p) for p, s in zip(paths, sinks) if s.closed_status != status]
+        said = (f"logs closed with status {status}: {', '.join(closed)}" if closed else "no log could be closed")
+        return said + (f"; {', '.join(cut)} ends at its last complete batch, without a status" if cut else "")
+
+    # one scope for the run and its report: a signal once the run is over waits until the report is
+    # out, so the exit code is the one of the status the logs record
+    with interrupts.run_scope():
+        try:
+            run = run_scenario(sc, sinks)
+        except (CallbackError, LogWriteError) as exc:  # the controller raised, or a log could not be written
+            print(f"error: run failed: {exc} ({logs_say('failed')})", file=sys.stderr)
+            return 1
+        except MemoryError:  # the run loop closed the logs as "failed" before this came out of it
+            print(f"error: run failed: out of memory ({logs_say('failed')})", file=sys.stderr)
+            return 1
+        if args.json:
+            print(json.dumps(run.metrics, indent=2))
+        else:
+            print(format_table(run.metrics))
+            print(f"logs: {paths[0]}  {paths[1]}")
+        status = run.result.status
+        if status == "completed":
+            return 0
+        stop = (interrupts.last_signal() or interrupts.Interrupted()) if status == "interrupted" else None
+        says = ("the logs say so and hold the samples up to there" if all(s.closed_status == status for s in sinks[:2])
+                else logs_say(status))
+        print(f"error: run {stop.label if stop else status}: {run.result.message} ({says})", file=sys.stderr)
+        return stop.exit_code if stop else 1
 
 
 def _workers(text: str) -> int:

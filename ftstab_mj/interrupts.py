@@ -51,22 +51,30 @@ def interruption(exc: BaseException) -> Interrupted:
 _depth = 0  # nesting of critical() blocks (main thread)
 _pending: int | None = None  # a signal held by critical()
 _stopping = False  # an Interrupted was raised: hold any further signal until the run ends
-_last: int | None = None  # the last signal received (the CLI's exit code)
+_last: int | None = None  # the signal last raised as Interrupted (the one that stopped the run)
 
 
 def _handler(signum, frame):
     global _pending, _stopping, _last
-    _last = signum
     if _depth or _stopping:
         _pending = signum if _pending is None else _pending
         return
-    _stopping = True
+    _stopping, _last = True, signum
     raise Interrupted(signum)
 
 
 def last_signal() -> Interrupted | None:
-    """The last signal received while :func:`handling` was in force, as an Interrupted (None: none)."""
+    """The signal last raised as Interrupted while :func:`handling` was in force (the one that
+    stopped the run; a signal that came while the logs were being closed is not it), or None."""
     return None if _last is None else Interrupted(_last)
+
+
+def hold() -> None:
+    """The run is finishing (its last batch is in, or it is failing): from now until the end of
+    :func:`run_scope` a signal is noted, never raised, so the logs are closed whole."""
+    global _stopping
+    if threading.current_thread() is threading.main_thread():
+        _stopping = True
 
 
 @contextmanager
@@ -84,7 +92,7 @@ def critical():
         _depth -= 1
         if _depth == 0 and _pending is not None and not _stopping:
             signum, _pending = _pending, None
-            _stopping = True
+            _stopping, _last = True, signum
             raise Interrupted(signum)
 
 
@@ -121,14 +129,22 @@ def handling(signals=SIGNALS, take_over: bool = False):
             _pending, _stopping = None, False
 
 
+_scopes = 0  # nesting of run_scope() (main thread)
+
+
 @contextmanager
 def run_scope():
-    """Around one run: signals handled (see :func:`handling`, SIGINT for library callers), and the
-    "being stopped" state reset when the run is over, so the next run starts afresh."""
-    global _pending, _stopping
+    """Around one run: signals handled (see :func:`handling`; SIGINT for library callers), and,
+    when the outermost scope ends, the "being stopped" state reset so that the next run starts
+    afresh. A command that reports on its run wraps both in one scope, so that a signal coming
+    once the run is over waits until the report is out (the exit code then is the run's)."""
+    global _pending, _stopping, _scopes
+    main = threading.current_thread() is threading.main_thread()
     with handling((signal.SIGINT,)):
+        _scopes += main
         try:
             yield
         finally:
-            if threading.current_thread() is threading.main_thread():
+            _scopes -= main
+            if main and _scopes == 0:
                 _pending, _stopping = None, False

@@ -56,6 +56,7 @@ import numpy as np
 
 from ftstab_mj import native as native_path
 from ftstab_mj.callback import control_callback, slot_owner, timer_off
+from ftstab_mj.interrupts import Interrupted, critical, interruption
 from ftstab_mj.errors import CallbackError, ParameterError
 from ftstab_mj.loop_stages.pipeline import build_stages, describe_stages
 from ftstab_mj.native import run as native_run
@@ -496,32 +497,41 @@ class Run:
     def finished(self) -> bool:
         return self.status is not None
 
-    def step(self) -> SampleBatch:
-        """The next batch of samples (the callback installed: ``with run.sim.installed()``)."""
+    def step(self, emit=None) -> SampleBatch:
+        """The next batch of samples (the callback installed: ``with run.sim.installed()``).
+
+        emit: called with the batch as it is kept (the sinks' writes): the two happen in one
+        :func:`ftstab_mj.interrupts.critical` block, so a signal never leaves a batch kept for the
+        metrics but missing from a log (it stops the run before or after both)."""
         if self.finished:
             raise RuntimeError(f"the run has ended ({self.status})")
         sim = self.sim
-        batch = self._keep(sim.advance(min(self.batch_size, self.n_total - self.done)))
+        batch = self._keep(sim.advance(min(self.batch_size, self.n_total - self.done)), emit)
         if sim.stop_reason:
             self.status, self.message = DIVERGED, sim.stop_reason
         elif self.done >= self.n_total:
             self.status = COMPLETED
         return batch
 
-    def stop(self, status: str, message: str) -> SampleBatch:
+    def stop(self, status: str, message: str, emit=None) -> SampleBatch:
         """End the run with ``status`` (INTERRUPTED, FAILED), also after its last batch (a Ctrl-C while
         that batch is being recorded); returns the samples recorded since the last batch (those of a
-        batch cut short), empty when there are none."""
+        batch cut short), empty when there are none. emit: as for :meth:`step`."""
         self.status, self.message = status, message
-        return self._keep(self.sim.take_batch())
+        return self._keep(self.sim.take_batch(), emit)
 
-    def interrupted(self) -> SampleBatch:
-        """:meth:`stop` for a Ctrl-C, with the message naming the simulated time it came at."""
-        return self.stop(INTERRUPTED, f"interrupted by the user at t = {self.sim.time:.6g} s")
+    def interrupted(self, stop: Interrupted | None = None, emit=None) -> SampleBatch:
+        """:meth:`stop` for a signal (``stop``; None: a Ctrl-C), the message naming it and the
+        simulated time it came at ("interrupted (SIGTERM) at t = 1.2 s")."""
+        label = (stop or Interrupted()).label
+        return self.stop(INTERRUPTED, f"{label} at t = {self.sim.time:.6g} s", emit)
 
-    def _keep(self, batch: SampleBatch) -> SampleBatch:
-        self._batches.append(batch)
-        self.done += len(batch)
+    def _keep(self, batch: SampleBatch, emit=None) -> SampleBatch:
+        with critical():
+            self._batches.append(batch)
+            self.done += len(batch)
+            if emit is not None:
+                emit(batch)
         return batch
 
     def result(self) -> RunResult:
@@ -552,6 +562,6 @@ def simulate(plant: Plant, loops, duration: float, period: float, physics_step: 
         try:
             while not run.finished:
                 run.step()
-        except KeyboardInterrupt:
-            run.interrupted()
+        except KeyboardInterrupt as exc:
+            run.interrupted(interruption(exc))
     return run.result()

@@ -220,3 +220,32 @@ def can_pump() -> bool:
         return hasattr(termios, "FIONREAD") and os.path.isdir("/proc/self/fd")
     except ImportError:
         return False
+
+
+RESERVE_BYTES = 64 * 1024  # room kept for a log's closing records (its /metrics status and summary)
+
+
+class Reserve:
+    """A hidden file of RESERVE_BYTES beside a log, taken at its opening and given back just before
+    it is closed: on a disk that filled up during the run, the log can still record how the run
+    ended ("failed: cannot write ...: No space left on device")."""
+
+    def __init__(self, log_path):
+        folder, name = os.path.split(os.path.abspath(os.fspath(log_path)))
+        self.path = os.path.join(folder, f".{name}.{secrets.token_hex(4)}.reserve.tmp")
+        fd = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_BINARY", 0), 0o600)
+        try:
+            if hasattr(os, "posix_fallocate"):
+                os.posix_fallocate(fd, 0, RESERVE_BYTES)
+            else:
+                os.write(fd, bytes(RESERVE_BYTES))
+        except OSError:
+            pass  # no room even for it: the log goes on without a reserve
+        finally:
+            os.close(fd)
+
+    def release(self) -> None:
+        try:
+            os.unlink(self.path)
+        except FileNotFoundError:
+            pass

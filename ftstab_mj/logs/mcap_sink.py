@@ -28,7 +28,7 @@ import numpy as np
 import orjson
 
 from ftstab_mj.errors import LogWriteError
-from ftstab_mj.logs.files import create_log, write_errors
+from ftstab_mj.logs.files import Reserve, create_log, write_errors
 from ftstab_mj.logs.encoding import SCHEMA_NAME, LoopLayout
 from ftstab_mj.logs.mcap_file import McapFile
 from ftstab_mj.logs.scene import model_shapes
@@ -120,6 +120,7 @@ class McapSink:
         self.pose_rate = float(pose_rate)
         self.compression = compression
         self.force = force  # replace a file at path that is not one of our logs (logs/files.py)
+        self.closed_status = None  # the status the log was closed with (None: not closed whole)
         self._writer = None
         self._file = None
 
@@ -127,11 +128,15 @@ class McapSink:
     def open(self, info: RunInfo) -> None:
         self._file = create_log(self.path, self.force, WHAT)  # LogError (bad input) when refused
         self._good = 0  # file size after the last complete flush: a failed write is cut back to it
+        self._reserve = None
         try:
+            self._reserve = Reserve(self.path)
             self._start(info)
         except BaseException:  # no half-opened log: the file this call created goes
             self._file.close()
             self._writer = None
+            if self._reserve is not None:
+                self._reserve.release()
             try:
                 os.unlink(self.path)
             except OSError:
@@ -189,6 +194,7 @@ class McapSink:
         self._good = self._file.tell()
 
     def _abandon(self) -> None:
+        self._reserve.release()
         try:
             os.ftruncate(self._file.fileno(), self._good)
         except OSError:
@@ -227,6 +233,7 @@ class McapSink:
         cut back and closed: nothing more is written (it ends at its last complete batch)."""
         if self._writer is None:
             return
+        self._reserve.release()  # its room is for what follows, on a disk that may have filled up
         t_end = int(round(self._n * self._info.period * 1e9))
         self._writer.add_message(self._ch_metrics, t_end, _json({"status": status, "message": message, "metrics": metrics}))
         self._flush()  # /metrics is on disk before the summary, which a full disk may still refuse
@@ -234,6 +241,7 @@ class McapSink:
             self._writer.finish()
             self._file.close()
         except OSError:
-            self._abandon()
+            self._abandon()  # the log ends with its /metrics record, without the summary (index)
             raise
         self._writer = None
+        self.closed_status = status

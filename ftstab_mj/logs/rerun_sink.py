@@ -189,6 +189,7 @@ class RerunSink:
         self.application_id = application_id
         self.live, self.web_port, self.grpc_port = live, web_port, grpc_port
         self.force = force
+        self.closed_status = None  # the status the recording was closed with (None: not closed whole)
         self._rec = None
         self._pump = None
 
@@ -374,6 +375,7 @@ class RerunSink:
         self._abandon()  # the end: Rerun writes its footer and closes the pipe, the copy ends
         if pump is not None and pump.error is not None:
             raise pump.error
+        self.closed_status = status
 
 
 def start_viewer(live: str, grpc_port: int, web_port: int) -> str:

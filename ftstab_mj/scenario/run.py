@@ -11,6 +11,8 @@ import sys
 import time
 from dataclasses import dataclass
 
+from ftstab_mj import interrupts
+from ftstab_mj.errors import LogWriteError
 from ftstab_mj.records import FAILED, INTERRUPTED
 from ftstab_mj.scenario.loader import scenario_from_dict, scenario_to_dict
 from ftstab_mj.scenario.schema import Scenario
@@ -31,61 +33,75 @@ def record(run, sinks=(), metrics=None):
     run.info, write each batch, then close with the status and ``metrics(info, samples, status)``
     (e.g. compute_metrics; {} when None). Returns (RunResult, metrics dict).
 
-    Ctrl-C ends the run "interrupted" (the samples of the batch cut short are written, metrics
-    computed, sinks closed). Any other exception (the controller's CallbackError, a sink's error)
-    closes the sinks "failed" after writing what was recorded, and is re-raised.
+    A signal (Ctrl-C, SIGTERM, SIGHUP: ftstab_mj.interrupts) ends the run "interrupted" (the
+    samples of the batch cut short are written, metrics computed, sinks closed). It never cuts the
+    logs: opening them, handing a batch to them all (and keeping it for the metrics), and closing
+    them are each done whole (interrupts.critical), and once the run is over (or stopping) later
+    signals wait until the logs are closed. So the logs hold the same samples, and their metrics
+    are those of the samples. Any other exception (the controller's CallbackError, a sink's
+    LogWriteError) closes the sinks "failed" after writing what was recorded, and is re-raised.
     """
     opened = []
-    try:
-        for sink in sinks:
-            sink.open(run.info)
-            opened.append(sink)
-        with run.sim.installed():
-            while not run.finished:
-                _write(opened, run.step())
-    except KeyboardInterrupt:
-        _write(opened, run.interrupted())
-    except BaseException as exc:  # keep the samples, close, re-raise
-        message = f"{type(exc).__name__}: {exc}"
+
+    def emit(batch):
+        _write(opened, batch)
+
+    with interrupts.run_scope():
         try:
-            _write(opened, run.stop(FAILED, message))
-        finally:
-            _close(opened, FAILED, {}, message)
-        raise
-    result = run.result()
-    try:
-        final = metrics(result.info, result.loops, result.status) if metrics else {}
-    except BaseException as exc:  # the logs must still end with a status, never without /metrics
-        _close(opened, FAILED, {}, f"metrics could not be computed: {type(exc).__name__}: {exc}")
-        raise
-    _close(opened, result.status, final, result.message)
+            with interrupts.critical():  # every log opened, or none of them
+                for sink in sinks:
+                    sink.open(run.info)
+                    opened.append(sink)
+            with run.sim.installed():
+                while not run.finished:
+                    run.step(emit)
+            interrupts.hold()  # the run is over: from here a signal waits until the logs are closed
+        except KeyboardInterrupt as exc:
+            run.interrupted(interrupts.interruption(exc), emit)
+        except BaseException as exc:  # keep the samples, close, re-raise
+            interrupts.hold()
+            message = str(exc) if isinstance(exc, LogWriteError) else f"{type(exc).__name__}: {exc}"
+            healthy = [s for s in opened if not (isinstance(exc, LogWriteError) and getattr(s, "path", None) == exc.path)]
+            try:
+                _write(healthy, run.stop(FAILED, message), quiet=True)
+            finally:
+                _close(opened, FAILED, {}, message, quiet=True)
+            raise
+        result = run.result()
+        try:
+            final = metrics(result.info, result.loops, result.status) if metrics else {}
+        except BaseException as exc:  # the logs must still end with a status, never without /metrics
+            _close(opened, FAILED, {}, f"metrics could not be computed: {type(exc).__name__}: {exc}", quiet=True)
+            raise
+        _close(opened, result.status, final, result.message)
     return result, final
 
 
-def _write(sinks, batch) -> None:
+def _write(sinks, batch, quiet: bool = False) -> None:
     """Hand a batch to every sink; a signal meanwhile is raised once all have it (interrupts.critical:
-    a SIGHUP in the middle of the MCAP write left a summary counting a batch the file lacked)."""
-    from ftstab_mj.interrupts import critical
-
+    a SIGHUP in the middle of the MCAP write left a summary counting a batch the file lacked).
+    quiet (the run is already failing): a sink that fails is passed over, the others still get it."""
     if len(batch):
-        with critical():
+        with interrupts.critical():
             for sink in sinks:
-                sink.write(batch)
+                try:
+                    sink.write(batch)
+                except Exception:  # noqa: BLE001 - quiet: the run's own error is the one reported
+                    if not quiet:
+                        raise
 
 
-def _close(sinks, status, metrics, message) -> None:
+def _close(sinks, status, metrics, message, quiet: bool = False) -> None:
     """Close every sink (a signal meanwhile is held); the first error raised by a close is re-raised
-    after all are closed."""
-    from ftstab_mj.interrupts import critical
-
+    after all are closed (quiet: not at all, the run's own error being the one reported)."""
     first = None
-    with critical():
+    with interrupts.critical():
         for sink in sinks:
             try:
                 sink.close(status, metrics, message)
             except Exception as exc:  # noqa: BLE001 - keep closing the others
                 first = first or exc
-    if first is not None:
+    if first is not None and not quiet:
         raise first
 
 
