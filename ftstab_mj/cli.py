@@ -346,9 +346,12 @@ def cmd_run(args) -> int:
     def logs_say(status: str) -> str:
         """What the logs record, as far as each could be closed (never more)."""
         closed = [str(p) for p, s in zip(paths, sinks) if s.closed_status == status]
-        cut = [str(p) for p, s in zip(paths, sinks) if s.closed_status != status]
-        said = (f"logs closed with status {status}: {', '.join(closed)}" if closed else "no log could be closed")
-        return said + (f"; {', '.join(cut)} ends at its last complete batch, without a status" if cut else "")
+        cut = [str(p) for p, s in zip(paths, sinks) if s.closed_status != status and p.exists()]
+        absent = [str(p) for p, s in zip(paths, sinks) if s.closed_status != status and not p.exists()]
+        said = [f"logs closed with status {status}: {', '.join(closed)}" if closed else "no log could be closed"]
+        said += [f"{p} ends at its last complete batch, without a status" for p in cut]
+        said += [f"{p} was not written" for p in absent]
+        return "; ".join(said)
 
     # one scope for the run and its report: a signal once the run is over waits until the report is
     # out, so the exit code is the one of the status the logs record

@@ -81,7 +81,7 @@ def hold() -> None:
 def critical():
     """A block that a signal does not cut: one received inside is raised when the outermost block
     ends (unless the run is already being stopped, then it is only noted)."""
-    global _depth, _pending, _stopping
+    global _depth, _pending, _stopping, _last
     if threading.current_thread() is not threading.main_thread():
         yield
         return

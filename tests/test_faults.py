@@ -101,3 +101,99 @@ def test_check_on_a_log_without_samples_says_so_and_exits_1(tmp_path):
     # and a malformed expectation file is still bad input
     (tmp_path / "bad.toml").write_text("n_samples = {valu = 0}\n")
     assert run_cli("check", path, "--expect", tmp_path / "bad.toml").returncode == 2
+
+
+# -- 18.2: a planted symlink, a file that is not a log ---------------------------------------------
+def test_a_symlink_planted_at_the_log_path_is_never_followed(tmp_path):
+    out = tmp_path / "out"
+    out.mkdir()
+    target = tmp_path / "precious.txt"
+    target.write_text("not yours\n")
+    (out / "cart_r2_robust.mcap").symlink_to(target)
+    res = run_cli("run", "cart_r2_robust", "--out", out, "--set", "sim.duration=0.2")
+    assert res.returncode == 2 and res.stderr.count("\n") == 1 and "Traceback" not in res.stderr
+    assert (f"error: {out / 'cart_r2_robust.mcap'}: expected no file or an ftstab log there, found a symbolic link "
+            f"(to {target}); not overwritten (--force replaces it)") == res.stderr.strip()
+    assert not (out / "cart_r2_robust.rrd").exists()  # nothing written for a refused run
+    res = run_cli("run", "cart_r2_robust", "--out", out, "--set", "sim.duration=0.2", "--force")
+    assert res.returncode == 0, res.stderr
+    log = out / "cart_r2_robust.mcap"
+    assert not log.is_symlink() and read_log(log).n_samples == 200  # the link replaced, not written through
+    assert target.read_text() == "not yours\n"
+
+
+def test_a_file_that_is_not_a_log_is_not_overwritten_without_force_and_our_logs_are(tmp_path):
+    (tmp_path / "cart_r2_robust.rrd").write_text("my notes\n")
+    res = run_cli("run", "cart_r2_robust", "--out", tmp_path, "--set", "sim.duration=0.2")
+    assert res.returncode == 2 and "found a file that is not an ftstab log (9 bytes)" in res.stderr
+    assert (tmp_path / "cart_r2_robust.rrd").read_text() == "my notes\n"
+    assert not (tmp_path / "cart_r2_robust.mcap").exists()
+    assert run_cli("run", "cart_r2_robust", "--out", tmp_path, "--set", "sim.duration=0.2", "--force").returncode == 0
+    # our own logs of an earlier run are replaced without --force (a run again in the same DIR)
+    again = run_cli("run", "cart_r2_robust", "--out", tmp_path, "--set", "sim.duration=0.3")
+    assert again.returncode == 0, again.stderr
+    assert read_log(tmp_path / "cart_r2_robust.mcap").n_samples == 300
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["cart_r2_robust.mcap", "cart_r2_robust.rrd"]  # no temp left
+
+
+# -- 18.1: a write error (disk full) ------------------------------------------------------------------
+@pytest.fixture
+def small_disk(tmp_path):
+    """A 400 KiB tmpfs the test mounts (root; skipped where mounting is not allowed: the fake-disk
+    test below covers the same paths everywhere)."""
+    import subprocess
+
+    mnt = tmp_path / "disk"
+    mnt.mkdir()
+    if subprocess.run(["mount", "-t", "tmpfs", "-o", "size=400k", "tmpfs", str(mnt)], capture_output=True).returncode:
+        pytest.skip("cannot mount a tmpfs here (not root?)")
+    try:
+        yield mnt
+    finally:
+        subprocess.run(["umount", "-l", str(mnt)], capture_output=True)
+
+
+def _check_full_disk_outcome(code, stderr, out, name="cart_r2_robust"):
+    """One line naming the file and the cause, exit 1; what it says of the logs is what they hold."""
+    assert code == 1 and stderr.count("\n") == 1 and "Traceback" not in stderr, stderr
+    assert stderr.startswith(f"error: run failed: {out}/{name}.") and "No space left on device" in stderr, stderr
+    mcap = out / f"{name}.mcap"
+    if not mcap.exists():  # the disk was full before the log was opened: no half-opened log
+        assert f"{mcap} was not written" in stderr, stderr
+        return None
+    log = read_log(mcap)  # readable up to its last complete batch whatever happened
+    if f"logs closed with status failed: {mcap}" in stderr:
+        assert log.recorded["status"] == "failed" and "No space left on device" in log.recorded["message"]
+    else:
+        assert log.recorded is None and f"{mcap} ends at its last complete batch, without a status" in stderr
+    return log
+
+
+def test_a_full_disk_ends_the_run_with_one_line_and_logs_that_say_what_they_hold(small_disk):
+    res = run_cli("run", "cart_r2_robust", "--out", small_disk, "--set", "sim.duration=60", timeout=120)
+    log = _check_full_disk_outcome(res.returncode, res.stderr.replace("\r", ""), small_disk)
+    assert 0 < log.n_samples < 60_000
+
+
+@pytest.mark.parametrize("limit", [3_000, 40_000, 150_000, 260_000])
+def test_a_disk_that_fills_at_a_chosen_byte(tmp_path, capsys, monkeypatch, limit):
+    """The same through a fake: every log write past ``limit`` bytes (both logs together) fails with
+    ENOSPC, as a full disk does, and frees nothing."""
+    import errno
+
+    from ftstab_mj.cli import main
+    from ftstab_mj.logs import files
+
+    written = [0]
+    real_write = files.LogFile.write
+
+    def write(self, data):
+        if written[0] + len(data) > limit:
+            raise OSError(errno.ENOSPC, "No space left on device")
+        written[0] += len(data)
+        return real_write(self, data)
+
+    monkeypatch.setattr(files.LogFile, "write", write)
+    monkeypatch.setattr(files, "RESERVE_BYTES", 0)  # the fake counts log bytes only
+    code = main(["run", "cart_r2_robust", "--out", str(tmp_path), "--set", "sim.duration=20"])
+    _check_full_disk_outcome(code, capsys.readouterr().err, tmp_path)

@@ -2,6 +2,7 @@
 status interrupted, exit 128 + signal), and an interrupted ``replay --verify`` says "interrupted",
 never that the log differs."""
 
+import json
 import signal
 import threading
 import time
@@ -87,3 +88,87 @@ def test_an_interrupted_replay_verify_says_interrupted_never_differs(tmp_path, c
                 "compared with the log", "error: interrupted")
         outcomes[code] += 1
     assert outcomes[130] >= 4, outcomes  # most moments fall inside the command
+
+
+def _rrd_rows(path, entity):
+    """Rows of ``entity`` in a complete .rrd (Rerun's strict reader)."""
+    from rerun.chunk import RrdReader
+
+    return sum(chunk.num_rows for chunk in RrdReader(str(path)).stream() if chunk.entity_path == entity)
+
+
+def main_with_signal_at(delay, sig, argv):
+    """main(argv) with ``sig`` sent to this process ``delay`` s after the start; (exit code or
+    "late" when it came after main returned, absorbed by a handler of the test's)."""
+    import os
+
+    late = []
+    saved = {s: signal.signal(s, lambda signum, frame: late.append(signum)) for s in (signal.SIGINT, signal.SIGTERM)}
+    timer = threading.Timer(delay, os.kill, (os.getpid(), sig))
+    try:
+        timer.start()
+        code = main(argv)
+        timer.join()
+        time.sleep(0.02)  # a signal sent just now is handled here
+    finally:
+        timer.join()
+        for s, h in saved.items():
+            signal.signal(s, h)
+    return "late" if late else code
+
+
+@pytest.mark.parametrize("scenario", ["cart_r2_robust", "arm_robust"])
+def test_a_signal_at_any_moment_leaves_logs_whose_metrics_are_the_replayed_ones(tmp_path, capsys, scenario):
+    """Ctrl-C or SIGTERM (alternately) at seeded moments spread over a whole `ftstab run` (loading,
+    setup, opening the logs, every batch, closing): either no log at all (stopped before the logs
+    were opened), or two complete logs holding the same samples, saying "interrupted" exactly when
+    the exit code is 128 + signal, with recorded metrics equal to the ones replayed from the samples."""
+    from ftstab_mj.metrics import compute_metrics
+
+    argv = ["run", scenario, "--out", str(tmp_path / "o"), "--set", "sim.duration=1.5", "--json"]
+    whole = []
+    for _ in range(2):  # the second, warm, is what the tries take
+        t0 = time.perf_counter()
+        assert main(argv) == 0
+        whole.append(time.perf_counter() - t0)
+    capsys.readouterr()
+    ref = read_log(tmp_path / "o" / f"{scenario}.mcap")  # the style rows Rerun's series hold beside samples
+    static = {name: _rrd_rows(tmp_path / "o" / f"{scenario}.rrd", f"/loop/{name}/V1/log10_V1") - ref.n_samples
+              for name in ref.loops}
+    rng = np.random.default_rng({"cart_r2_robust": 10, "arm_robust": 6}[scenario])
+    outcomes = {"completed": 0, "interrupted": 0, "no log": 0, "late": 0}
+    tries = 12
+    for k, delay in enumerate(rng.uniform(0.0, min(whole), tries)):
+        sig = (signal.SIGINT, signal.SIGTERM)[k % 2]
+        out = tmp_path / f"try{k}"
+        code = main_with_signal_at(delay, sig, ["run", scenario, "--out", str(out), "--set", "sim.duration=1.5"])
+        stdout, stderr = capsys.readouterr()
+        where = f"try {k}: {signal.Signals(sig).name} at {delay:.3f} s: exit {code}: {stderr!r}"
+        assert "Traceback" not in stderr, where
+        if code == "late":
+            outcomes["late"] += 1
+            continue
+        mcap, rrd = out / f"{scenario}.mcap", out / f"{scenario}.rrd"
+        if not mcap.exists():  # stopped before the logs were opened: neither exists, and it says so
+            assert code == 128 + sig and not rrd.exists(), where
+            assert stderr.strip().splitlines()[-1] == f"error: {interruption_label(sig)}", where
+            outcomes["no log"] += 1
+            continue
+        log = read_log(mcap)
+        assert log.complete and log.recorded is not None, where
+        status = log.recorded["status"]
+        assert (status == "interrupted") == (code == 128 + sig) and (status == "completed") == (code == 0), where
+        replayed = compute_metrics(log.info, log.loops, status)
+        assert json.loads(json.dumps(replayed)) == log.recorded["metrics"], where
+        for name in log.loops:  # the Rerun recording holds the same samples
+            assert _rrd_rows(rrd, f"/loop/{name}/V1/log10_V1") - static[name] == log.n_samples, where
+        if status == "interrupted":
+            assert log.recorded["message"].startswith(interruption_label(sig) + " at t = "), where
+            assert f"error: run {interruption_label(sig)}: " in stderr and "the logs say so" in stderr, where
+        outcomes[status] += 1
+    print(scenario, outcomes)
+    assert outcomes["interrupted"] >= tries // 3, outcomes
+
+
+def interruption_label(sig):
+    return "interrupted" if sig == signal.SIGINT else f"interrupted ({signal.Signals(sig).name})"

@@ -242,6 +242,7 @@ class McapSink:
             self._file.close()
         except OSError:
             self._abandon()  # the log ends with its /metrics record, without the summary (index)
+            self.closed_status = status  # ... so it does record the status
             raise
         self._writer = None
         self.closed_status = status
