@@ -114,6 +114,14 @@ def create_log(path, force: bool = False, what: str = "log") -> LogFile:
     return LogFile(fd, "wb")
 
 
+def discard(path) -> None:
+    """Remove a log this process has just created and could not open whole (no half-opened log)."""
+    try:
+        os.unlink(path)
+    except OSError:
+        pass  # already gone, or the directory went: nothing of ours is left to remove
+
+
 def write_error(path, what: str, exc: OSError) -> LogWriteError:
     """The error of a log that could not be written (disk full, quota, I/O error)."""
     return LogWriteError(path, f"cannot write the {what}: {exc.strerror or exc}")

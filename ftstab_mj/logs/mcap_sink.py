@@ -28,7 +28,7 @@ import numpy as np
 import orjson
 
 from ftstab_mj.errors import LogWriteError
-from ftstab_mj.logs.files import Reserve, create_log, write_errors
+from ftstab_mj.logs.files import Reserve, create_log, discard, write_errors
 from ftstab_mj.logs.encoding import SCHEMA_NAME, LoopLayout
 from ftstab_mj.logs.mcap_file import McapFile
 from ftstab_mj.logs.scene import model_shapes
@@ -137,10 +137,7 @@ class McapSink:
             self._writer = None
             if self._reserve is not None:
                 self._reserve.release()
-            try:
-                os.unlink(self.path)
-            except OSError:
-                pass
+            discard(self.path)
             raise
 
     def _start(self, info: RunInfo) -> None:

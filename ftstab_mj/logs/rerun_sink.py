@@ -31,12 +31,11 @@ camera known; everything logged before is buffered by Rerun and sent then.
 from __future__ import annotations
 
 import math
-import os
 
 import numpy as np
 
 from ftstab_mj.errors import LogError, LogWriteError
-from ftstab_mj.logs.files import Pump, can_pump, create_log, write_errors
+from ftstab_mj.logs.files import Pump, can_pump, create_log, discard, write_errors
 from ftstab_mj.logs.scene import PLANE_HALF_THICKNESS, model_shapes, quat_rotate
 from ftstab_mj.records import RunInfo, SampleBatch, format_table
 
@@ -207,10 +206,7 @@ class RerunSink:
         except BaseException:  # no half-opened log: the file this call created goes
             self._abandon()
             if self.path is not None:
-                try:
-                    os.unlink(self.path)
-                except OSError:
-                    pass
+                discard(self.path)
             raise
 
     def _start(self, info: RunInfo) -> None:
