@@ -317,7 +317,11 @@ def cmd_run(args) -> int:
     from ftstab_mj.scenario import find_scenario, load_scenario
     from ftstab_mj.scenario.run import ProgressSink, run_scenario
 
-    sc = load_scenario(find_scenario(args.scenario), args.set)  # every check happens here, before any file
+    path = find_scenario(args.scenario)
+    if not path.exists():
+        raise UsageError(f"run {args.scenario}: expected a scenario file (.toml) or the name of a shipped "
+                         "scenario, found neither (`ftstab list` shows the shipped ones)")
+    sc = load_scenario(path, args.set)  # every check happens here, before any file
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise UsageError(f"--out {args.out}: expected a directory for the logs, found a file")
@@ -562,7 +566,10 @@ def build_parser() -> argparse.ArgumentParser:
     p = _Parser(prog="ftstab", description=(
         "Testbed for the finite-time robust and adaptive controllers of Harmouche, Laghrouche and "
         "Chitour on MuJoCo plants."))
-    sub = p.add_subparsers(dest="verb", required=True, parser_class=_Parser)
+    from ftstab_mj import __version__
+
+    p.add_argument("--version", action="version", version=f"ftstab {__version__}")
+    sub = p.add_subparsers(dest="verb", parser_class=_Parser, metavar="VERB")
     c = sub.add_parser("certify", help="sound Lyapunov certificate (c, alpha, c', alpha') of Hong's controller",
                        description="Bound c (dV1/dt <= -c V1^alpha) from below and c' (|dV1/dz_r| <= c' V1^alpha') "
                                    "from above by branch and bound with outward-rounded interval arithmetic over the "
@@ -732,14 +739,24 @@ def main(argv=None) -> int:
 
     with interrupts.handling(take_over=True):  # SIGTERM and SIGHUP stop a command like Ctrl-C (exit 128 + signal)
         try:
-            args = build_parser().parse_args(argv)
-            return args.func(args)
+            parser = build_parser()
+            args = parser.parse_args(argv)
+            if args.verb is None:  # `ftstab` alone: what it can do
+                parser.print_help()
+                return 0
+            code = args.func(args)
+            sys.stdout.flush()  # a closed pipe shows here (stdout is block-buffered into a pipe), not at exit
+            return code
         except LogWriteError as exc:  # a log could not be written (disk full): not bad input
             print(f"error: {exc}", file=sys.stderr)
             return 1
         except FtstabError as exc:  # every bad input of ours: one line, exit 2
             print(f"error: {exc}", file=sys.stderr)
             return 2
+        except BrokenPipeError:  # `ftstab replay ... | head`: the reader left; say nothing more
+            devnull = os.open(os.devnull, os.O_WRONLY)
+            os.dup2(devnull, sys.stdout.fileno())  # Python's flush at exit would raise again
+            return 0
         except KeyboardInterrupt as exc:  # outside a run (a run catches its own and finalizes its logs)
             stop = interrupts.interruption(exc)
             print(f"error: {stop.label}", file=sys.stderr)
