@@ -318,7 +318,7 @@ def cmd_run(args) -> int:
     from ftstab_mj.scenario.run import ProgressSink, run_scenario
 
     path = find_scenario(args.scenario)
-    if not path.exists():
+    if not path.exists() and not (path.suffix or "/" in args.scenario):  # a name, not a path: the loader says the rest
         raise UsageError(f"run {args.scenario}: expected a scenario file (.toml) or the name of a shipped "
                          "scenario, found neither (`ftstab list` shows the shipped ones)")
     sc = load_scenario(path, args.set)  # every check happens here, before any file
