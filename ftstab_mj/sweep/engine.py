@@ -20,6 +20,11 @@ that asks for a resource no worker declares waits for ever) or a refusal of mult
 needs nothing from the cluster's configuration. The cost: a worker process runs one row at a time,
 so its extra threads add no speed (start workers with ``--nthreads 1 --nworkers N`` for N at once).
 
+Rows travel in chunks (:func:`chunks`): one engine task runs several rows one after the other, so the
+engine's cost per task (pickling, scheduling, a round trip: ~1 ms on processes, several ms on Dask)
+is paid once per chunk, not once per row; results still come back per row. A chunk is the unit of
+loss: when a worker dies, every row of its chunk is lost (and retried by a resume).
+
 A result of ``None`` means the run was lost by the engine (its worker process died): it is not a
 result of the run and the caller must not record it as one.
 """
@@ -35,6 +40,8 @@ from ftstab_mj.errors import EngineError
 from ftstab_mj.records import FAILED
 
 ENGINES = ("serial", "processes", "dask")
+CHUNKS_PER_WORKER = 4  # enough chunks for the workers to even out rows of unequal cost
+MAX_CHUNK = 32  # rows per task at most: a lost chunk (dead worker) costs a resume at most this many rows
 
 
 def guarded(task: Callable[[int, tuple], dict], index: int, params: tuple) -> dict:
@@ -55,13 +62,24 @@ def guarded(task: Callable[[int, tuple], dict], index: int, params: tuple) -> di
     return out
 
 
+def run_chunk(task: Callable[[int, tuple], dict], chunk: list[tuple[int, tuple]]) -> list[tuple[int, dict]]:
+    """[(index, guarded(task, index, params))] for every row of ``chunk``, one after the other."""
+    return [(i, guarded(task, i, params)) for i, params in chunk]
+
+
+def chunks(items: list, workers: int) -> list[list]:
+    """``items`` cut into consecutive chunks: about CHUNKS_PER_WORKER per worker, at most MAX_CHUNK rows each."""
+    size = max(1, min(MAX_CHUNK, -(-len(items) // (CHUNKS_PER_WORKER * max(1, workers)))))
+    return [items[k:k + size] for k in range(0, len(items), size)]
+
+
 def execute(items: Iterable[tuple[int, tuple]], task: Callable[[int, tuple], dict], engine: str = "serial",
             workers: int = 1, scheduler: str | None = None) -> Iterator[tuple[int, dict | None]]:
     """Run ``task`` on every (index, params); yield (index, result or None if lost) as runs finish."""
     items = list(items)
     if not items:  # nothing to run (e.g. resuming a finished sweep): start no engine
         return
-    if engine == "serial":
+    if engine == "serial":  # row by row: nothing to amortize, and a Ctrl-C loses no finished row
         for i, params in items:
             yield i, guarded(task, i, params)
     elif engine == "processes":
@@ -79,10 +97,12 @@ def _processes(items, task, workers) -> Iterator[tuple[int, dict | None]]:
     # spawn, not fork: a forked child would inherit this process's MuJoCo and thread state
     pool = ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"))
     try:
-        futures = {pool.submit(guarded, task, i, params): i for i, params in items}
+        futures = {pool.submit(run_chunk, task, chunk): chunk for chunk in chunks(items, workers)}
         for fut in as_completed(futures):
-            exc = fut.exception()
-            yield futures[fut], (None if exc is not None else fut.result())
+            if fut.exception() is not None:  # the worker died (BrokenProcessPool): its chunk is lost
+                yield from ((i, None) for i, _ in futures[fut])
+            else:
+                yield from fut.result()
     finally:
         pool.shutdown(wait=True, cancel_futures=True)
 
@@ -109,10 +129,15 @@ def _dask(items, task, workers, scheduler) -> Iterator[tuple[int, dict | None]]:
         raise EngineError(f"--scheduler: expected a reachable Dask scheduler, could not reach {where} ({exc})") from None
     tag = uuid.uuid4().hex[:8]  # keys unique to this sweep on a shared scheduler
     try:
-        futures = {client.submit(guarded, task, i, params, key=f"ftstab-{tag}-{i}", pure=False): i for i, params in items}
+        if scheduler:  # the cluster's workers now (more may join later)
+            workers = max(1, len(client.scheduler_info().get("workers", {})))
+        futures = {client.submit(run_chunk, task, chunk, key=f"ftstab-{tag}-{chunk[0][0]}", pure=False): chunk
+                   for chunk in chunks(items, workers)}
         for fut in as_completed(futures):
-            lost = fut.status != "finished"  # "error": the task killed its workers (KilledWorker)
-            yield futures[fut], (None if lost else fut.result())
+            if fut.status != "finished":  # "error": the task killed its workers (KilledWorker)
+                yield from ((i, None) for i, _ in futures[fut])
+            else:
+                yield from fut.result()
             fut.release()
     finally:
         client.close()
