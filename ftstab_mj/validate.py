@@ -17,7 +17,6 @@ size before anything walks it (:func:`check_text`, :func:`check_structure`).
 
 from __future__ import annotations
 
-import functools
 import math
 import types
 import typing
@@ -362,8 +361,16 @@ class Reader:
         return out
 
 
-@functools.lru_cache(maxsize=None)
+_HINTS: dict[type, tuple[dict, dict, tuple]] = {}  # class -> (its __dataclass_fields__, hints, fields)
+
+
 def _hints_and_fields(cls) -> tuple[dict, tuple]:
-    """The resolved type hints and the fields of dataclass ``cls``: fixed per class, and resolving the
-    hints (typing.get_type_hints) was the largest cost of validating a sweep row (~1 ms a row)."""
-    return typing.get_type_hints(cls), fields(cls)
+    """The resolved type hints and the fields of dataclass ``cls``, kept per class while its field
+    table is the same object: resolving the hints (typing.get_type_hints) was the largest cost of
+    validating a sweep row (~1 ms a row), and registering a law rebuilds ControllerSpec's fields in
+    place (a new table, so the entry is redone; the entry holds the old table, so its id is not reused)."""
+    table = cls.__dataclass_fields__
+    hit = _HINTS.get(cls)
+    if hit is None or hit[0] is not table:
+        hit = _HINTS[cls] = (table, typing.get_type_hints(cls), fields(cls))
+    return hit[1], hit[2]
