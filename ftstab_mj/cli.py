@@ -761,6 +761,12 @@ def main(argv=None) -> int:
             stop = interrupts.interruption(exc)
             print(f"error: {stop.label}", file=sys.stderr)
             return stop.exit_code
+        except ImportError:  # a signal inside a C extension's import comes out as "initialization failed"
+            stop = interrupts.last_signal()
+            if stop is None:
+                raise
+            print(f"error: {stop.label}", file=sys.stderr)
+            return stop.exit_code
 
 
 if __name__ == "__main__":
