@@ -344,6 +344,11 @@ def cmd_run(args) -> int:
     say(f"  plant {sc.plant.model}, {len(sc.loops)} loop(s) ({', '.join(lp.controller.law for lp in sc.loops)}),"
         f" {sc.sim.duration:g} s, control period {sc.sim.period * 1e3:g} ms,"
         f" physics step {sc.sim.physics_step * 1e3:g} ms ({sc.sim.integrator}), seed {sc.seed}")
+    if sc.plant.model.endswith(".xml"):  # what the testbed made of a user's model (a saturation kept, ...)
+        from ftstab_mj.plants import make_plant
+
+        for note in make_plant(sc.plant.model, sc.plant.params).notes:
+            print(f"note: {note}", file=sys.stderr)
     sinks = (McapSink(paths[0], force=args.force), RerunSink(paths[1], force=args.force),
              ProgressSink(sc.name, sc.sim.duration))
 

@@ -247,6 +247,8 @@ def workspace_left(loop, z, u) -> str | None:
         out.append(f"z_1 spanned [{np.nanmin(z1):.3g}, {np.nanmax(z1):.3g}], outside [{w['z1_min']:g}, {w['z1_max']:g}]")
     if np.nanmax(z2) > w["z2_abs_max"]:
         out.append(f"|z_2| reached {np.nanmax(z2):.3g} > {w['z2_abs_max']:g}")
+    if "z3_abs_max" in w and np.nanmax(np.abs(z[:, 2])) > w["z3_abs_max"]:  # r = 3 plants
+        out.append(f"|z_3| reached {np.nanmax(np.abs(z[:, 2])):.3g} > {w['z3_abs_max']:g}")
     if np.nanmax(ua) > w["u_abs_max"]:
         out.append(f"|u| reached {np.nanmax(ua):.3g} > {w['u_abs_max']:g}")
     return "; ".join(out)

@@ -138,6 +138,9 @@ class Simulation:
         self._body_ids = np.array([mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_BODY, b)
                                    for b in plant.body_names], dtype=int)
         self._z = np.empty((n, r))
+        # the loops' dofs (qfrc_applied) and actuators (ctrl): 0..n-1 unless the plant says otherwise
+        self._dof = np.arange(n) if plant.dof_ids is None else np.asarray(plant.dof_ids)
+        self._act = np.arange(n) if plant.actuator_ids is None else np.asarray(plant.actuator_ids)
         self._u = np.zeros(n)  # control held over the period, chain units
         self._u_applied = np.zeros(n)  # what the plant receives at the sample (the actuator's output)
         self._u_steps = np.zeros((self.N, n))  # ... and at each physics step of the period
@@ -286,6 +289,7 @@ class Simulation:
         ctrl, qfrc = d.ctrl, d.qfrc_applied
         integrating, refresh = self.plant.integrating, self.plant.refresh_before_sample
         step = mujoco.mj_step
+        dof, act = self._dof, self._act
         for k in range(n_samples):
             base = k * N
             if self._warning_count() != warn0:
@@ -298,14 +302,14 @@ class Simulation:
             if self.stop_reason:
                 break
             if integrating:
-                qfrc[:n] += force[base]
+                qfrc[dof] += force[base]
             for s in range(base + 1, base + N):
-                ctrl[:n] = ctrl_steps[s]
+                ctrl[act] = ctrl_steps[s]
                 if integrating:
                     step(m, d)
-                    qfrc[:n] += force[s]
+                    qfrc[dof] += force[s]
                 else:
-                    qfrc[:n] = force[s]
+                    qfrc[dof] = force[s]
                     step(m, d)
 
     def _warning_count(self) -> int:
@@ -440,9 +444,9 @@ class Simulation:
         s, n = self._s, self.plant.n
         u, u_steps = (self._u_applied, self._u_steps) if self._staged else (self._u, self._u)
         self._ctrl[s:s + self.N] = self._gain[s:s + self.N] * u_steps  # held u times each step's gain
-        d.ctrl[:n] = self._ctrl[s]
+        d.ctrl[self._act] = self._ctrl[s]
         if not self.plant.integrating:
-            d.qfrc_applied[:n] = self._force[s]
+            d.qfrc_applied[self._dof] = self._force[s]
         phi, gamma = self.plant.true_chain(m, d, u, self._gain[s], self._inj[s])
         for i, rec in enumerate(self._rec):
             rec["phi"][row] = phi[i]
@@ -454,7 +458,7 @@ class Simulation:
     def _stop(self, d, reason: str) -> None:
         """Stop the run at this sample (diverged): no control, nothing recorded."""
         self.stop_reason = reason
-        d.ctrl[:self.plant.n] = 0.0
+        d.ctrl[self._act] = 0.0
 
 
 def sample_count(duration: float, period: float) -> int:

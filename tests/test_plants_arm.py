@@ -9,7 +9,7 @@ from ftstab_mj.disturbances import Signal
 from ftstab_mj.errors import ParameterError
 from ftstab_mj.metrics import compute_metrics, workspace_left
 from ftstab_mj.plants import make_plant
-from ftstab_mj.plants.arm import _max_abs_quadratic
+from ftstab_mj.plants.chain_bounds import max_abs_quadratic
 from ftstab_mj.sim import LoopSpec, simulate
 
 HONG = HongController(2, -0.2, (1.0, 2.0))
@@ -33,7 +33,8 @@ def test_max_abs_quadratic_is_exact_on_a_box():
         c, b, A = rng.normal(), rng.normal(size=2), rng.normal(size=(2, 2))
         A = A + A.T
         brute = np.abs(c + g @ b + np.einsum("vi,ij,vj->v", g, A, g)).max()
-        exact = _max_abs_quadratic(c, b, A, w)
+        # x = w y with |y| <= 1: c + (w b).y + y^T (w A w) y
+        exact = max_abs_quadratic(np.array([c]), (w * b)[None], (np.outer(w, w) * A)[None])[0]
         assert brute <= exact * (1 + 1e-12) and exact <= brute * (1 + 1e-4)  # a grid approaches the max from below
 
 
@@ -132,7 +133,7 @@ def test_leaving_the_workspace_is_reported(arm):
     ({"link_lengths": [0.5]}, "params.link_lengths: expected 2 finite numbers > 0"),
     ({"q_min": [0.0, 0.0], "q_max": [1.0, -1.0]}, "params.q_max: expected numbers above q_min"),
     ({"grid": 1}, r"params.grid: expected an integer in \[2, 161\]"),
-    ({"grid": 100000}, r"params.grid: expected an integer in \[2, 161\] \(the bounds evaluate grid\^2"),
+    ({"grid": 100000}, r"params.grid: expected an integer in \[2, 161\] \(the bounds evaluate the model at grid\^joints"),
     ({"elbow": 1}, "params.elbow: expected a parameter of model 'arm'"),
 ])
 def test_bad_arm_parameters_are_named(params, match):

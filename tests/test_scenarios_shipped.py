@@ -71,6 +71,20 @@ CLAIMS = {
     "arm_adaptive": (6.0, lambda m: all(m[j]["eps_entry_time"] <= 2.0 and m[j]["V1_max_after_entry"] < 1e-2
                                         and _x_final(m[j]) < 0.05 and _theorem3_held(m[j])
                                         for j in ("joint0", "joint1"))),
+    # settles (V1 < 1e-3) at 2.02 / 4.87 / 1.63 s (T(z0) 5.97 / 5.71 / 5.39 s), in the workspace
+    "arm3_robust": (None, lambda m: all(m[j]["settle_time"] <= 5.0 and m[j]["beat_bound"] and m[j]["bound_applies"]
+                                        for j in ("joint0", "joint1", "joint2"))),
+    # V1 enters eps at 1.68 / 1.45 / 1.16 s, then stays below 1.04e-2 / 5.6e-3 / 4.4e-3 (10 s)
+    "arm3_adaptive": (None, lambda m: all(m[j]["eps_entry_time"] <= 2.5 and m[j]["V1_max_after_entry"] < 1.5e-2
+                                          and _x_final(m[j]) < 0.05 and _theorem3_held(m[j])
+                                          for j in ("joint0", "joint1", "joint2"))),
+    # r = 3: V1 < 2e-2 from 0.83 / 1.04 s on (T(z0) 31.1 s), in the workspace, final |q - ref| 2.4e-3 / 6.2e-3 rad
+    "arm_r3_robust": (None, lambda m: all(m[j]["settle_time"] <= 1.5 and m[j]["beat_bound"] and m[j]["bound_applies"]
+                                          and _x_final(m[j]) < 1e-2 for j in ("joint0", "joint1"))),
+    # r = 3: V1 enters eps at 0.83 / 0.79 s, then stays below 2.0e-2 / 2.04e-2; final |q - ref| 0.025 / 0.010 rad
+    "arm_r3_adaptive": (None, lambda m: all(m[j]["eps_entry_time"] <= 1.0 and m[j]["V1_max_after_entry"] < 2.5e-2
+                                            and _x_final(m[j]) < 0.05 and _theorem3_held(m[j])
+                                            for j in ("joint0", "joint1"))),
 }
 
 

@@ -389,6 +389,89 @@ void ft_stage_actuate(const ft_stage *S, int64_t k0, int64_t n, const double *u,
 
 int64_t ft_stage_size(void) { return (int64_t)sizeof(ft_stage); }
 
+/* ---- chain plants (ftstab_mj/plants/chain.py): the C twin of ChainPlant.sense and true_chain ------
+ *
+ * A chain plant's loops sit on any dofs and actuators of a model (dof[i], act[i]); z is read as
+ * weighted sums of sensor readings (z[i][j] = sum_k w sensordata[adr], adr -1 unused), and the true
+ * phi and gamma come from MuJoCo's own stage functions (called through pointers into the libmujoco
+ * the Python bindings loaded): qacc_smooth after mj_fwdActuation + mj_fwdAcceleration, (M^-1)_ii
+ * from mj_solveM, and for r = 3 the central difference of qacc_smooth along the state's derivative
+ * on a private MjData. The operations and their order are those of chain.py, so both paths agree
+ * to rounding. The layout is mirrored by FtChain in native/run.py: keep them in sync. */
+typedef void (*ft_mjfn)(const void *m, void *d);
+typedef void (*ft_solvefn)(const void *m, void *d, double *x, const double *y, int n);
+
+typedef struct {
+    int32_t K, nv, nq, na, nu, integrating;
+    const int32_t *adr;          /* (n, r, K) */
+    const double *w;             /* (n, r, K) */
+    const int32_t *dof, *act;    /* (n,) */
+    const double *b, *dist_scale; /* (n,) gain x gear, generalized force per unit of injected phi */
+    ft_mjfn fwd_position, fwd_velocity, fwd_actuation, fwd_acceleration;
+    ft_solvefn solve_m;
+    /* the run's MjData */
+    const double *qpos, *qvel, *act_state, *act_dot, *qacc_smooth, *qfrc_applied, *ctrl;
+    /* the private MjData of the central difference */
+    void *s;
+    double *s_qpos, *s_qvel, *s_act, *s_qfrc_applied, *s_ctrl;
+    const double *s_qacc_smooth;
+    double eps;
+    double *work;                /* 2 n nv + 3 nv + 2 n doubles */
+} ft_chain;
+
+static inline double chain_read(const ft_chain *C, const double *sensordata, int i, int j, int r) {
+    double acc = 0.0;
+    const int base = (i * r + j) * C->K;
+    for (int k = 0; k < C->K; k++)
+        if (C->adr[base + k] >= 0) acc = acc + C->w[base + k] * sensordata[C->adr[base + k]];
+    return acc;
+}
+
+/* phi, gamma (n,) of the sample, after its ctrl (and r = 2 disturbance) were written into d. */
+static void chain_truth(const ft_chain *C, const void *m, void *d, int n, const double *u, const double *gain,
+                        const double *inj, double *phi, double *gamma) {
+    const int nv = C->nv;
+    double *e = C->work, *x = e + n * nv, *acc = x + n * nv, *rate = acc + 2 * n, *qacc = rate + nv;
+    C->fwd_actuation(m, d);
+    C->fwd_acceleration(m, d);
+    for (int k = 0; k < n * nv; k++) e[k] = 0.0;
+    for (int i = 0; i < n; i++) e[i * nv + C->dof[i]] = 1.0;
+    C->solve_m(m, d, x, e, n);
+    for (int i = 0; i < n; i++) gamma[i] = gain[i] * (C->b[i] * x[i * nv + C->dof[i]]);
+    if (!C->integrating) {
+        for (int i = 0; i < n; i++) phi[i] = C->qacc_smooth[C->dof[i]] - gamma[i] * u[i];
+        return;
+    }
+    for (int c = 0; c < nv; c++) { rate[c] = 0.0; qacc[c] = C->qacc_smooth[c]; }
+    for (int i = 0; i < n; i++) rate[C->dof[i]] = C->dist_scale[i] * inj[i];
+    for (int side = 0; side < 2; side++) {
+        const double h = (side == 0 ? 1.0 : -1.0) * C->eps;
+        for (int c = 0; c < C->nq; c++) C->s_qpos[c] = C->qpos[c] + h * C->qvel[c];
+        for (int c = 0; c < nv; c++) {
+            C->s_qvel[c] = C->qvel[c] + h * qacc[c];
+            C->s_qfrc_applied[c] = C->qfrc_applied[c] + h * rate[c];
+        }
+        for (int c = 0; c < C->na; c++) C->s_act[c] = C->act_state[c] + h * C->act_dot[c];
+        for (int c = 0; c < C->nu; c++) C->s_ctrl[c] = C->ctrl[c];
+        C->fwd_position(m, C->s);
+        C->fwd_velocity(m, C->s);
+        C->fwd_actuation(m, C->s);
+        C->fwd_acceleration(m, C->s);
+        for (int i = 0; i < n; i++) acc[side * n + i] = C->s_qacc_smooth[C->dof[i]];
+    }
+    for (int i = 0; i < n; i++) phi[i] = (acc[i] - acc[n + i]) / (2.0 * C->eps) - gamma[i] * u[i];
+}
+
+/* ChainPlant.sense + true_chain for one state, for the tests (the run uses them inside the callback). */
+void ft_chain_eval(const ft_chain *C, const void *m, void *d, int32_t n, int32_t r, const double *sensordata,
+                   const double *u, const double *gain, const double *inj, double *z, double *phi, double *gamma) {
+    for (int i = 0; i < n; i++)
+        for (int j = 0; j < r; j++) z[i * r + j] = chain_read(C, sensordata, i, j, r);
+    chain_truth(C, m, d, n, u, gain, inj, phi, gamma);
+}
+
+int64_t ft_chain_size(void) { return (int64_t)sizeof(ft_chain); }
+
 /* ---- the control callback of the MuJoCo run loop (ftstab_mj/sim.py, native path) ----------------
  *
  * The C twin of Simulation._sample plus the per-step input writes of Simulation.advance, so that a
@@ -445,7 +528,12 @@ typedef struct {
     int64_t k0;                  /* index of the batch's first sample since t = 0 */
     double *u_steps;             /* (N,) scratch: the actuator's output at each step of the period */
     double *rec_zm[FT_MAXLOOPS], *rec_zh[FT_MAXLOOPS], *rec_ua[FT_MAXLOOPS]; /* (samples, m), (samples, r), (samples,) */
+    const ft_chain *chain;       /* a chain plant's readout and truth (NULL: z from sensor_adr, phi from inj) */
 } ft_run;
+
+/* The ctrl and qfrc_applied index of loop i. */
+static inline int ctrl_of(const ft_run *R, int i) { return R->chain ? R->chain->act[i] : i; }
+static inline int dof_of(const ft_run *R, int i) { return R->chain ? R->chain->dof[i] : i; }
 
 static void run_sample(ft_run *R, const void *m, void *d, int64_t s) {
     const int n = R->n, N = R->N;
@@ -465,7 +553,7 @@ static void run_sample(ft_run *R, const void *m, void *d, int64_t s) {
     for (int i = 0; i < n; i++) {
         const int r = R->laws[i].r;
         for (int j = 0; j < r; j++) {
-            double v = R->sensordata[R->sensor_adr[i * r + j]];
+            double v = R->chain ? chain_read(R->chain, R->sensordata, i, j, r) : R->sensordata[R->sensor_adr[i * r + j]];
             if (j == 0) v -= R->refs[i];
             z[i * FT_RMAX + j] = v;
             if (!(fabs(v) <= zmax)) { if (v != v) nan = 1; else zmax = fabs(v); }
@@ -475,7 +563,7 @@ static void run_sample(ft_run *R, const void *m, void *d, int64_t s) {
         R->status = FT_DIVERGED_Z;
         R->bad_value = nan ? NAN : zmax;
         R->bad_time = t;
-        for (int i = 0; i < n; i++) R->ctrl[i] = 0.0;
+        for (int i = 0; i < n; i++) R->ctrl[ctrl_of(R, i)] = 0.0;
         return;
     }
     /* what the laws see: z, or a staged loop's sensor reading through its observer */
@@ -510,7 +598,7 @@ static void run_sample(ft_run *R, const void *m, void *d, int64_t s) {
             R->bad_loop = i;
             R->bad_value = o.u;
             R->bad_time = t;
-            for (int q = 0; q < n; q++) R->ctrl[q] = 0.0;
+            for (int q = 0; q < n; q++) R->ctrl[ctrl_of(R, q)] = 0.0;
             return;
         }
         R->u_held[i] = o.u;
@@ -531,11 +619,21 @@ static void run_sample(ft_run *R, const void *m, void *d, int64_t s) {
         }
     }
     for (int i = 0; i < n; i++) {
-        R->ctrl[i] = R->ctrl_steps[s * n + i];
-        if (!R->integrating) R->qfrc_applied[i] = R->force[s * n + i];
+        R->ctrl[ctrl_of(R, i)] = R->ctrl_steps[s * n + i];
+        if (!R->integrating) R->qfrc_applied[dof_of(R, i)] = R->force[s * n + i];
+        if (R->chain) continue;
         const int64_t at = i * S + row;
         R->rec[6][at] = R->inj[s * n + i] - R->phi_damping[i] * R->qvel[i] / R->phi_mass[i];
         R->rec[7][at] = R->gain[s * n + i];
+    }
+    if (R->chain) {
+        double phi[FT_MAXLOOPS], gamma[FT_MAXLOOPS], ua[FT_MAXLOOPS]; /* the actuator's output, as sim.py */
+        for (int i = 0; i < n; i++) ua[i] = (R->stage_on && R->stage_on[i]) ? R->rec_ua[i][row] : R->u_held[i];
+        chain_truth(R->chain, m, d, n, ua, R->gain + s * n, R->inj + s * n, phi, gamma);
+        for (int i = 0; i < n; i++) {
+            R->rec[6][i * S + row] = phi[i];
+            R->rec[7][i * S + row] = gamma[i];
+        }
     }
     for (int b = 0; b < R->nbody; b++) {
         for (int c = 0; c < 3; c++) R->body_pos[(row * R->nbody + b) * 3 + c] = R->xpos[R->body_ids[b] * 3 + c];
@@ -567,15 +665,15 @@ void ft_control_callback(const void *m, void *d) {
     }
     const int n = R->n;
     if (R->integrating && s > 0)             /* the force rate held over the step just done */
-        for (int i = 0; i < n; i++) R->qfrc_applied[i] += R->force[(s - 1) * n + i];
+        for (int i = 0; i < n; i++) R->qfrc_applied[dof_of(R, i)] += R->force[(s - 1) * n + i];
     R->last_step = s;
     if (s % R->N == 0) {
         run_sample(R, m, d, s);
         return;
     }
     for (int i = 0; i < n; i++) {
-        R->ctrl[i] = R->ctrl_steps[s * n + i];
-        if (!R->integrating) R->qfrc_applied[i] = R->force[s * n + i];
+        R->ctrl[ctrl_of(R, i)] = R->ctrl_steps[s * n + i];
+        if (!R->integrating) R->qfrc_applied[dof_of(R, i)] = R->force[s * n + i];
     }
 }
 
@@ -586,7 +684,7 @@ void ft_run_activate(ft_run *R) { ft_active = R; }
  * is no longer served (one call, so that no Python runs between the two). */
 void ft_run_finish(ft_run *R) {
     if (R->integrating && R->status == FT_RUNNING && R->last_step >= 0)
-        for (int i = 0; i < R->n; i++) R->qfrc_applied[i] += R->force[R->last_step * R->n + i];
+        for (int i = 0; i < R->n; i++) R->qfrc_applied[dof_of(R, i)] += R->force[R->last_step * R->n + i];
     if (ft_active == R) ft_active = NULL;
 }
 

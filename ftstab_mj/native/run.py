@@ -51,6 +51,21 @@ class FtRun(ctypes.Structure):
         ("bad_value", _d), ("bad_time", _d), ("busy", _i32),
         ("stages", _p), ("stage_on", _p), ("stage_adr", _p), ("k0", _i64), ("u_steps", _p),
         ("rec_zm", _p * MAXLOOPS), ("rec_zh", _p * MAXLOOPS), ("rec_ua", _p * MAXLOOPS),
+        ("chain", _p),
+    ]
+
+
+class FtChain(ctypes.Structure):
+    """Mirror of ft_chain in kernel.c (a chain plant's readout and truth, plants/chain.py)."""
+
+    _fields_ = [
+        ("K", _i32), ("nv", _i32), ("nq", _i32), ("na", _i32), ("nu", _i32), ("integrating", _i32),
+        ("adr", _p), ("w", _p), ("dof", _p), ("act", _p), ("b", _p), ("dist_scale", _p),
+        ("fwd_position", _p), ("fwd_velocity", _p), ("fwd_actuation", _p), ("fwd_acceleration", _p), ("solve_m", _p),
+        ("qpos", _p), ("qvel", _p), ("act_state", _p), ("act_dot", _p), ("qacc_smooth", _p), ("qfrc_applied", _p),
+        ("ctrl", _p),
+        ("s", _p), ("s_qpos", _p), ("s_qvel", _p), ("s_act", _p), ("s_qfrc_applied", _p), ("s_ctrl", _p),
+        ("s_qacc_smooth", _p), ("eps", _d), ("work", _p),
     ]
 
 
@@ -104,13 +119,46 @@ def time_address(d: mujoco.MjData) -> int:
 
 
 @functools.lru_cache(maxsize=None)
-def mj_forward_skip_address() -> int:
-    """Address of mj_forwardSkip in the libmujoco the Python bindings use (same file, so same library)."""
+def mujoco_function(name: str) -> int:
+    """Address of MuJoCo's C function ``name`` in the libmujoco the Python bindings use (same file, so
+    same library)."""
     libs = sorted(Path(mujoco.__file__).parent.glob("libmujoco.so*")) + sorted(
         Path(mujoco.__file__).parent.glob("libmujoco*.dylib")) + sorted(Path(mujoco.__file__).parent.glob("mujoco.dll"))
     if not libs:
-        raise native.NativeUnavailable("cannot find the MuJoCo library for the sensor refresh")
-    return ctypes.cast(ctypes.CDLL(str(libs[0])).mj_forwardSkip, ctypes.c_void_p).value
+        raise native.NativeUnavailable(f"cannot find the MuJoCo library for {name}")
+    return ctypes.cast(getattr(ctypes.CDLL(str(libs[0])), name), ctypes.c_void_p).value
+
+
+def chain_config(plant, m, d) -> tuple:
+    """(FtChain, the arrays and private MjData it points into, to keep alive) for a chain plant
+    (plants/chain.py native_chain) on (m, d)."""
+    c = plant.native_chain(m)
+    s = mujoco.MjData(m)  # the private MjData of the r = 3 central difference
+    n = len(c["dof"])
+    keep = {"adr": np.ascontiguousarray(c["adr"], dtype=np.int32), "w": np.ascontiguousarray(c["w"], dtype=float),
+            "dof": np.ascontiguousarray(c["dof"], dtype=np.int32), "act": np.ascontiguousarray(c["act"], dtype=np.int32),
+            "b": np.ascontiguousarray(c["b"], dtype=float),
+            "dist_scale": np.ascontiguousarray(plant.dist_scale, dtype=float),
+            "work": np.zeros(2 * n * m.nv + 3 * m.nv + 2 * n), "s": s}
+    C = FtChain()
+    C.K, C.nv, C.nq, C.na, C.nu, C.integrating = keep["adr"].shape[2], m.nv, m.nq, m.na, m.nu, int(plant.integrating)
+    for name in ("adr", "w", "dof", "act", "b", "dist_scale", "work"):
+        setattr(C, name, keep[name].ctypes.data)
+    for field, fn in (("fwd_position", "mj_fwdPosition"), ("fwd_velocity", "mj_fwdVelocity"),
+                      ("fwd_actuation", "mj_fwdActuation"), ("fwd_acceleration", "mj_fwdAcceleration"),
+                      ("solve_m", "mj_solveM")):
+        setattr(C, field, mujoco_function(fn))
+    for field, name in (("qpos", "qpos"), ("qvel", "qvel"), ("act_state", "act"), ("act_dot", "act_dot"),
+                        ("qacc_smooth", "qacc_smooth"), ("qfrc_applied", "qfrc_applied"), ("ctrl", "ctrl")):
+        setattr(C, field, getattr(d, name).ctypes.data)
+    C.s = s._address
+    for field, name in (("s_qpos", "qpos"), ("s_qvel", "qvel"), ("s_act", "act"), ("s_qfrc_applied", "qfrc_applied"),
+                        ("s_ctrl", "ctrl"), ("s_qacc_smooth", "qacc_smooth")):
+        setattr(C, field, getattr(s, name).ctypes.data)
+    from ftstab_mj.plants.chain import EPS
+
+    C.eps = EPS
+    return C, keep
 
 
 def unsupported(plant, laws, loops, integrator: str) -> str:
@@ -119,7 +167,7 @@ def unsupported(plant, laws, loops, integrator: str) -> str:
         return f"the native callback needs one forward pass per step ({' or '.join(INTEGRATORS)}), not {integrator!r}"
     if len(laws) > MAXLOOPS:
         return f"the native callback handles at most {MAXLOOPS} loops"
-    if plant.native_sensing(None) is None:
+    if plant.native_sensing(None) is None and not hasattr(plant, "native_chain"):
         return f"plant {plant.model_name!r} has no native sensor map"
     for L in loops:
         if L.disturbance.state_dependent and L.disturbance.kind != "worst_case":
@@ -158,8 +206,13 @@ class NativeRun:
     def __init__(self, m, d, plant, loops, laws, state_slices, refs, force_factor, body_ids, period: float,
                  physics_step: float, N: int, divergence_limit: float):
         self.lib = _lib()
-        adr, damping, mass = plant.native_sensing(m)
         n = len(laws)
+        chain = hasattr(plant, "native_chain")
+        if chain:  # z and the true phi, gamma from the chain plant's map (kernel.c ft_chain)
+            self._chain, self._chain_keep = chain_config(plant, m, d)
+            adr, damping, mass = np.zeros((n, plant.r)), np.zeros(n), np.ones(n)
+        else:
+            adr, damping, mass = plant.native_sensing(m)
         self._keep = keep = {
             "sensor_adr": np.ascontiguousarray(adr, dtype=np.int32),
             "body_ids": np.ascontiguousarray(body_ids, dtype=np.int32),
@@ -184,12 +237,13 @@ class NativeRun:
         R.time = time_address(d)
         for name in ("ctrl", "qfrc_applied", "userdata", "sensordata", "qvel", "xpos", "xquat"):
             setattr(R, name, getattr(d, name).ctypes.data)
-        R.mj_forward_skip = mj_forward_skip_address() if plant.refresh_before_sample else None
+        R.mj_forward_skip = mujoco_function("mj_forwardSkip") if plant.refresh_before_sample else None
         R.skip_stage = int(mujoco.mjtStage.mjSTAGE_VEL)
         R.n, R.N, R.integrating, R.nbody = n, N, int(plant.integrating), len(body_ids)
         for name, value in keep.items():
             setattr(R, name, ctypes.addressof(value) if isinstance(value, ctypes.Array) else value.ctypes.data)
         R.period, R.h, R.divergence_limit = period, physics_step, divergence_limit
+        R.chain = ctypes.addressof(self._chain) if chain else None
         self.d = d
         self.callback = self.lib.ft_control_callback  # a ctypes function pointer: set_mjcb_control takes it
 

@@ -10,6 +10,10 @@ then know it. Registered models (files in models/):
   "arm"               r = 2, loops "joint0", "joint1": two stacked hinge joints in a vertical plane
                       (params: link_lengths, link_masses, armature, friction, damping; the
                       workspace of the bounds: q_min, q_max, qd_max, u_max, grid)
+  "arm_integrating"   r = 3, the same arm, its motors integrate the control (torque rate)
+  "arm3"              r = 2, loops "joint0".."joint2": three stacked hinge joints
+A model that is the path of an MJCF file ("robot.xml") is a user model (plants/user.py): its
+loops, joints and actuators come from params["loops"].
 
 Signal units differ: the carts take phi and gamma in chain units, the arm takes phi as an injected
 joint torque (N m) and gamma as a motor gain factor (plant.phi_units / plant.gamma_units say it).
@@ -32,14 +36,18 @@ from ftstab_mj.plants.base import PLANTS, Plant, register_plant
 for _module in pkgutil.iter_modules(__path__):  # every plant module registers its models
     importlib.import_module(f"{__name__}.{_module.name}")
 
+from ftstab_mj.plants.user import UserPlant  # noqa: E402 (imported above with the others)
+
 MODELS = tuple(PLANTS)  # the models registered by this package's modules
 
 
 def make_plant(model: str, params: dict | None = None) -> Plant:
     """Build the registered plant ``model`` with ``params`` (defaults for missing keys)."""
     params = {} if params is None else params
+    if model not in PLANTS and isinstance(model, str) and model.endswith(".xml"):
+        return UserPlant(model, params)
     if model not in PLANTS:
-        raise ParameterError("model", "one of " + ", ".join(PLANTS), model)
+        raise ParameterError("model", "one of " + ", ".join(PLANTS) + " or the path of an MJCF file (.xml)", model)
     return PLANTS[model].build(model, params)
 
 

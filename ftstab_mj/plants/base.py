@@ -1,8 +1,8 @@
 """What every plant gives the run loop: a compiled MuJoCo model, how to read z, how inputs map to it.
 
 A plant has ``n`` control loops (one per actuated joint), all with the same chain length ``r``.
-The loops' joints are dofs ``0..n-1`` and their actuators are actuators ``0..n-1`` (every model in
-``models/`` is written that way), so the run loop addresses them with plain slices.
+The loops' joints are dofs ``dof_ids`` and their actuators ``actuator_ids`` (None: ``0..n-1``, as
+the carts are written; a ChainPlant maps any model's joints, plants/chain.py).
 
 Input mapping, per loop i, with the signals of its :class:`ftstab_mj.sim.LoopSpec`:
 
@@ -88,6 +88,9 @@ class Plant:
     body_names: tuple[str, ...] = ()
     phi_units: str = ""
     gamma_units: str = ""
+    dof_ids: np.ndarray | None = None  # (n,) dof of each loop's joint; None: 0..n-1
+    actuator_ids: np.ndarray | None = None  # (n,) actuator of each loop; None: 0..n-1
+    notes: tuple | list = ()  # lines to show the user about the model (a saturation kept, ...)
 
     def __init__(self, spec: mujoco.MjSpec):
         self._spec = spec

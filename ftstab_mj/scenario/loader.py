@@ -18,6 +18,7 @@ from __future__ import annotations
 import math
 import zlib
 from dataclasses import fields, is_dataclass, replace
+from pathlib import Path
 
 import numpy as np
 
@@ -243,6 +244,10 @@ def _computed_bounds(sc: Scenario, plant, rd: _Reader) -> Scenario:
     loops = list(sc.loops)
     for i, name, bound in wanted:
         if not math.isfinite(value[(loops[i].name, bound)]):
+            reason = getattr(plant, "unbounded_reason", "")  # a chain plant says why (no workspace, friction)
+            if reason:
+                raise rd.error(f"loops.{loops[i].name}.controller.{name}",
+                               f"a number, since this plant's bound is infinite ({reason})", f'"{COMPUTED}"')
             why = (f"damping = {plant.damping:g}" if getattr(plant, "damping", 0) else
                    "signals whose bounds overflow")
             raise rd.error(f"loops.{loops[i].name}.controller.{name}",
@@ -336,7 +341,17 @@ def load_scenario(path, overrides=()) -> Scenario:
     where = {}
     for text in overrides:
         where[apply_override(raw, text, src)] = f"--set {_short(text)}"
+    _resolve_model_path(raw, Path(src).parent)
     return scenario_from_dict(raw, src, where)
+
+
+def _resolve_model_path(raw: dict, base: Path) -> None:
+    """A user model's ``plant.model = "robot.xml"`` is relative to the scenario file: make it absolute
+    (the resolved scenario, and so the log's /scenario, then names the file wherever it is run)."""
+    plant = raw.get("plant")
+    model = plant.get("model") if isinstance(plant, dict) else None
+    if isinstance(model, str) and model.endswith(".xml") and not Path(model).is_absolute():
+        plant["model"] = str((base / model).resolve())
 
 
 def scenario_to_dict(sc: Scenario) -> dict:

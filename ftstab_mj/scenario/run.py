@@ -133,15 +133,24 @@ def verify_log(log):
     from ftstab_mj.errors import LogError
     from ftstab_mj.interrupts import Interrupted, last_signal
     from ftstab_mj.logs.verify import compare_log, rerun_scenario
+    from ftstab_mj.logs.scene import check_untrusted_model
     from ftstab_mj.plants import PLANTS
+    from ftstab_mj.plants.user import recorded_model
 
     scenario = rerun_scenario(log)
     plant = scenario.get("plant")
     model = plant.get("model") if isinstance(plant, dict) else None
-    if model not in PLANTS:  # a log is untrusted: re-running it must not read a local file it names
-        raise LogError(f"{log.path}: /scenario plant.model: --verify re-runs the registered plants only "
-                       f"({', '.join(PLANTS)}), found {str(model)[:80]!r}; re-run that scenario with ftstab run")
-    rerun = run_scenario_dict(scenario, sinks=(), source=f"{log.path} /scenario").result
+    user_model = isinstance(model, str) and model.endswith(".xml") and bool(log.info.model_xml)
+    if user_model:  # a user model is re-run from the XML the log holds, never from the file it names
+        check_untrusted_model(log.info.model_xml, f"{log.path}: /run_info model_xml")
+        with recorded_model(model, log.info.model_xml):
+            rerun = run_scenario_dict(scenario, sinks=(), source=f"{log.path} /scenario").result
+    elif model not in PLANTS:  # a log is untrusted: re-running it must not read a local file it names
+        raise LogError(f"{log.path}: /scenario plant.model: --verify re-runs the registered plants, or a user "
+                       f"model from the XML its log holds ({', '.join(PLANTS)}), found {str(model)[:80]!r}; "
+                       "re-run that scenario with ftstab run")
+    else:
+        rerun = run_scenario_dict(scenario, sinks=(), source=f"{log.path} /scenario").result
     if rerun.status == INTERRUPTED:  # stopped by a signal: nothing to compare (not a difference)
         raise last_signal() or Interrupted()
     return compare_log(log, rerun)
