@@ -204,18 +204,14 @@ def test_a_plant_with_two_loops_runs_natively_as_in_python(integrator, N):
 
 
 def test_the_arm_twin():
-    """The arm (two loops) has no native sensor map yet (its true phi needs M(q)^-1, which the
-    kernel does not compute): native=True says so; once it has one, it must agree with Python."""
+    """The arm (two loops) runs natively (its readout and true phi through kernel.c's ft_chain): the
+    native run agrees with the Python one."""
     from ftstab_mj.plants.arm import ArmPlant  # noqa: F401 - the registered "arm"
 
     plant = make_plant("arm")
     loops = [LoopSpec(f"joint{i}", controller=RobustLaw(HONG[2], 10.0, 1.0), z0=(0.2, 0.0), ref=0.3 * i)
              for i in range(2)]
     args = (plant, loops, 0.3, 1e-3, 1e-3)
-    if plant.native_sensing(None) is None:
-        with pytest.raises(native.NativeUnavailable, match="plant 'arm' has no native sensor map"):
-            Simulation(*args[:1], loops, 1e-3, 1e-3, native=True)
-        return
     assert_same_run(simulate(*args, native=False), simulate(*args, native=True))
 
 
