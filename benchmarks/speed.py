@@ -97,13 +97,12 @@ def with_callback(plant, kind: str, r: int, steps: int, use_native) -> float:
 
 def full_run(plant, kind: str, r: int, steps: int) -> float:
     from ftstab_mj.logs import McapSink, RerunSink
-    from ftstab_mj.metrics import compute_metrics
     from ftstab_mj.scenario.run import record
 
     with tempfile.TemporaryDirectory() as tmp:
         sinks = (McapSink(Path(tmp) / "run.mcap"), RerunSink(Path(tmp) / "run.rrd"))
         return timed(lambda: record(Run(Simulation(plant, loops(kind, r), STEP, STEP), steps * STEP), sinks,
-                                    compute_metrics))
+                                    metrics=True))
 
 
 def process_pair(steps: int):

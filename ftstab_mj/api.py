@@ -88,7 +88,7 @@ def run(scenario_or_path, out=None, overrides=None, live=False) -> Result:
         sinks += [McapSink(logs["mcap"]), RerunSink(logs["rrd"], live=live)]
     elif live:
         sinks.append(RerunSink(None, live=live))
-    done = run_scenario(sc, sinks)
+    done = run_scenario(sc, sinks, keep_samples=True)  # Result.samples
     res = done.result
     return Result(samples=res.loops, metrics=done.metrics, status=res.status, message=res.message, logs=logs,
                   scenario=scenario_to_dict(sc), body_pos=res.body_pos, body_quat=res.body_quat)

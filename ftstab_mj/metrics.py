@@ -18,6 +18,7 @@ them: non-finite entries count as NaN, so a live run and its replay give identic
 from __future__ import annotations
 
 import math
+import warnings
 
 import numpy as np
 
@@ -235,22 +236,38 @@ def eps_ball(t, V1, eps):
     return float(t[inside[0]]), _num(np.min(after)), _num(np.max(after))
 
 
+def extremes(z, u) -> np.ndarray:
+    """(min z_1, max z_1, max |z_2|, max |u|, max |z_3| (NaN for r < 3)) of samples z (n, r), u (n,), NaN
+    ignored (NaN when all are NaN): what :func:`workspace_left` reads. Per-batch extremes combine
+    exactly with np.fmin (the first) and np.fmax (the others)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # an all-NaN batch (a diverged run)
+        z1 = z[:, 0]
+        z3 = np.nanmax(np.abs(z[:, 2])) if z.shape[1] > 2 else np.nan
+        return np.array([np.nanmin(z1), np.nanmax(z1), np.nanmax(np.abs(z[:, 1])), np.nanmax(np.abs(u)), z3])
+
+
 def workspace_left(loop, z, u) -> str | None:
     """What left the region where the loop's true bounds hold (LoopInfo.workspace), "" when
     nothing did, None when the bounds hold everywhere. z (n, r) and u (n,) are the samples."""
+    return _workspace_text(loop, extremes(z, u))
+
+
+def _workspace_text(loop, ext) -> str | None:
+    """:func:`workspace_left` from the samples' :func:`extremes`."""
     w = loop.workspace
     if w is None:
         return None
     out = []
-    z1, z2, ua = z[:, 0], np.abs(z[:, 1]), np.abs(u)
-    if np.nanmin(z1) < w["z1_min"] or np.nanmax(z1) > w["z1_max"]:
-        out.append(f"z_1 spanned [{np.nanmin(z1):.3g}, {np.nanmax(z1):.3g}], outside [{w['z1_min']:g}, {w['z1_max']:g}]")
-    if np.nanmax(z2) > w["z2_abs_max"]:
-        out.append(f"|z_2| reached {np.nanmax(z2):.3g} > {w['z2_abs_max']:g}")
-    if "z3_abs_max" in w and np.nanmax(np.abs(z[:, 2])) > w["z3_abs_max"]:  # r = 3 plants
-        out.append(f"|z_3| reached {np.nanmax(np.abs(z[:, 2])):.3g} > {w['z3_abs_max']:g}")
-    if np.nanmax(ua) > w["u_abs_max"]:
-        out.append(f"|u| reached {np.nanmax(ua):.3g} > {w['u_abs_max']:g}")
+    z1_min, z1_max, z2_max, u_max, z3_max = (float(x) for x in ext)
+    if z1_min < w["z1_min"] or z1_max > w["z1_max"]:
+        out.append(f"z_1 spanned [{z1_min:.3g}, {z1_max:.3g}], outside [{w['z1_min']:g}, {w['z1_max']:g}]")
+    if z2_max > w["z2_abs_max"]:
+        out.append(f"|z_2| reached {z2_max:.3g} > {w['z2_abs_max']:g}")
+    if "z3_abs_max" in w and z3_max > w["z3_abs_max"]:  # r = 3 plants
+        out.append(f"|z_3| reached {z3_max:.3g} > {w['z3_abs_max']:g}")
+    if u_max > w["u_abs_max"]:
+        out.append(f"|u| reached {u_max:.3g} > {w['u_abs_max']:g}")
     return "; ".join(out)
 
 
@@ -286,73 +303,234 @@ def _finite_or_nan(a):
     return np.where(np.isfinite(a), a, np.nan)
 
 
-def loop_metrics(info: RunInfo, loop, arrays: dict) -> dict:
-    """All metrics of one loop (see the functions above for each definition)."""
-    a = {k: _finite_or_nan(v) for k, v in arrays.items()}
-    t, V1, u = a["t"], a["V1"], a["u"]
-    n = len(t)
-    ms = info.metric_settings
-    out = {"law": loop.law, "n_samples": n}
-    if n == 0:
-        return out
-    h = info.period
-    win = t >= t[0] + (1.0 - ms.final_fraction) * n * h
-    if not win.any():
-        win[-1] = True
-    ts = settle_time(t, V1, ms.settle_level)
-    tb = time_bound(loop, float(V1[0]))
-    left = workspace_left(loop, a["z"], u)
-    stages = getattr(loop, "stages", None)
-    reasons = stage_reasons(stages)
-    # the true bounds only hold inside the workspace; the stages may break the theorems' assumptions
-    applies = bound_applies(loop) and not left and not reasons
-    eps = float(loop.law_params["eps"]) if loop.law == "adaptive" else ms.settle_level
-    entry, v_min, v_max = eps_ball(t, V1, eps)
-    e_abs, e_sq, u_max = effort(u, h)
-    out.update({
-        "z0": [_num(x) for x in a["z"][0]],
-        "V1_initial": _num(V1[0]),
-        "V1_final": _num(V1[-1]),
-        "settle_level": ms.settle_level,
-        "settle_time": ts,
-        # the same definition on |z_1| (law-independent: a rival law may have no V1)
-        "settle_time_z1": settle_time(t, np.abs(a["z"][:, 0]), ms.settle_z1),
-        "time_bound": tb,
-        "workspace_left": left,
-        "bound_applies": applies,
-        "beat_bound": (bool(ts <= tb) if applies and ts is not None and tb is not None else None),
-        "final_window_start": float(t[win][0]),
-        "final_abs_z_max": final_abs_max(a["z"][win]),
-        "chattering": chattering(u[win], h),
-        "chattering_du_dt_var": du_dt_variance(u[win], h),
-        "chattering_zero_crossings": zero_crossing_rate(u[win], h),
-        "chattering_band_rms": band_rms(u[win], h, ms.chatter_band),
-        "effort_abs": e_abs,
-        "effort_sq": e_sq,
-        "u_max_abs": u_max,
-        "eps": eps,
-        "eps_entry_time": entry,
-        "V1_min_after_entry": v_min,
-        "V1_max_after_entry": v_max,
-        "phi_hat_max": _num(np.max(a["phi_hat"])),
-        "phi_hat_final": _num(a["phi_hat"][-1]),
-        "theorem3": None if left else theorem3_check(loop, V1[win], a["phi_hat"][win]),
-        "certificate": certificate_summary(loop),
-    })
-    if stages is not None:  # the loop's sensor, observer, actuator (records.STAGE_FIELDS)
-        e_max, e_rms = estimation_error(a["z_hat"][win], a["z"][win])
-        t_sat = saturated_time(u, stages, h)
+# -- streaming: the metrics of a run as its batches arrive ------------------------------------------
+
+# the fields the final-window metrics read (kept for the window only); the others are reduced as they come
+_WINDOW_FIELDS = ("t", "z", "u", "V1", "phi_hat", "z_hat", "u_applied")
+
+
+class _SettleTracker:
+    """:func:`settle_time` on a stream: the last sample above the level and the time of the one after."""
+
+    def __init__(self, level: float):
+        self.level = level
+        self.last_above = -1  # index of the last sample with x above the level (NaN counts as above)
+        self.t_after = None  # time of the sample after it (None until it has arrived)
+
+    def update(self, n_before: int, t, x) -> None:
+        if self.last_above == n_before - 1 and n_before:  # the previous batch ended above the level
+            self.t_after = float(t[0])
+        above = np.flatnonzero(~(x <= self.level))
+        if above.size:
+            i = int(above[-1])
+            self.last_above = n_before + i
+            self.t_after = float(t[i + 1]) if i + 1 < len(t) else None
+
+    def result(self, n: int, t0: float):
+        if self.last_above < 0:
+            return t0
+        return None if self.last_above == n - 1 else self.t_after
+
+
+class _BlockSum:
+    """A sum of a stream of samples that does not depend on how the stream is cut into batches: the
+    samples are summed in blocks of BLOCK consecutive samples (math.fsum: the correctly rounded block
+    sum) and the block sums in order, so a run and its replay (one batch) give the same bits. Against
+    np.sum of the whole array it differs by rounding only (one rounding per block). Holds < BLOCK samples."""
+
+    BLOCK = 4096
+
+    def __init__(self):
+        self.total, self.carry = 0.0, np.empty(0)
+
+    def update(self, x) -> None:
+        x = np.concatenate([self.carry, x]) if self.carry.size else x
+        full = len(x) - len(x) % self.BLOCK
+        for i in range(0, full, self.BLOCK):
+            self.total += _fsum(x[i:i + self.BLOCK])
+        self.carry = x[full:].copy()
+
+    def result(self) -> float:
+        return self.total + _fsum(self.carry) if self.carry.size else self.total
+
+
+def _fsum(x) -> float:
+    try:
+        return math.fsum(x.tolist())
+    except OverflowError:  # finite values whose sum overflows (np.sum gives inf there)
+        return math.copysign(math.inf, float(np.sum(x)))
+
+
+def _nan_max(acc, x):
+    """Running max that propagates NaN as np.max of the whole array does (None: nothing yet)."""
+    return x if acc is None else np.maximum(acc, x)
+
+
+class _LoopStream:
+    """The metrics of one loop from its batches ({field: array}, as logged); see :func:`loop_metrics`.
+
+    Whole-run metrics are reduced batch by batch; the final-window ones are computed at the end from
+    the last ``window`` samples (None: every sample is kept), the most the window can hold.
+    """
+
+    def __init__(self, info: RunInfo, loop, window: int | None):
+        self.info, self.loop, self.window = info, loop, window
+        ms = info.metric_settings
+        self.eps = float(loop.law_params["eps"]) if loop.law == "adaptive" else ms.settle_level
+        self.settle = _SettleTracker(ms.settle_level)
+        self.settle_z1 = _SettleTracker(ms.settle_z1)
+        self.n = 0
+        self.tail: list[dict] = []  # the last batches' window fields, at least `window` samples
+        self.tail_n = 0
+        self.dropped = False
+        self.first = self.last = None
+        self.abs_sum, self.sq_sum = _BlockSum(), _BlockSum()
+        self.u_max = self.phi_hat_max = self.u_applied_max = None
+        self.ext = None  # workspace extremes
+        self.entry = self.v_min = self.v_max = None  # eps-ball: entry time, V1 min/max from it on
+        self.n_saturated = 0.0
+
+    def update(self, arrays: dict) -> None:
+        a = {k: _finite_or_nan(v) for k, v in arrays.items()}
+        t, V1, u, z = a["t"], a["V1"], a["u"], a["z"]
+        m = len(t)
+        if m == 0:
+            return
+        if self.n == 0:
+            self.first = {"t": float(t[0]), "z": z[0].copy(), "V1": float(V1[0])}
+        self.last = {"V1": V1[-1], "phi_hat": a["phi_hat"][-1]}
+        self.settle.update(self.n, t, V1)
+        self.settle_z1.update(self.n, t, np.abs(z[:, 0]))
+        self.abs_sum.update(np.abs(u))
+        self.sq_sum.update(u * u)
+        self.u_max = _nan_max(self.u_max, np.max(np.abs(u)))
+        self.phi_hat_max = _nan_max(self.phi_hat_max, np.max(a["phi_hat"]))
+        ext = extremes(z, u)
+        self.ext = ext if self.ext is None else np.array([np.fmin(self.ext[0], ext[0]), *np.fmax(self.ext[1:], ext[1:])])
+        if self.entry is None:
+            inside = np.flatnonzero(V1 <= self.eps)
+            if inside.size:
+                self.entry = float(t[inside[0]])
+                after = V1[inside[0]:]
+                self.v_min, self.v_max = np.min(after), np.max(after)
+        else:
+            self.v_min, self.v_max = np.minimum(self.v_min, np.min(V1)), np.maximum(self.v_max, np.max(V1))
+        stages = getattr(self.loop, "stages", None)
+        if stages is not None:
+            self.n_saturated += saturated_time(u, stages, 1.0)  # a count: exact
+            self.u_applied_max = _nan_max(self.u_applied_max, np.max(np.abs(a["u_applied"])))
+        self.n += m
+        self.tail.append({f: a[f] for f in _WINDOW_FIELDS if f in a})
+        self.tail_n += m
+        while self.window is not None and self.tail_n - len(self.tail[0]["t"]) >= self.window:
+            self.tail_n -= len(self.tail.pop(0)["t"])
+            self.dropped = True
+
+    def result(self) -> dict:
+        loop, info, n = self.loop, self.info, self.n
+        out = {"law": loop.law, "n_samples": n}
+        if n == 0:
+            return out
+        ms, h = info.metric_settings, info.period
+        w = {f: np.concatenate([b[f] for b in self.tail]) for f in self.tail[0]}
+        win = w["t"] >= self.first["t"] + (1.0 - ms.final_fraction) * n * h
+        if self.dropped and win[0]:  # (cannot happen: window >= the window's length; never answer short)
+            raise RuntimeError(f"the final window of loop {loop.name} is longer than the {self.window} samples kept")
+        if not win.any():
+            win[-1] = True
+        ts = self.settle.result(n, self.first["t"])
+        tb = time_bound(loop, self.first["V1"])
+        left = _workspace_text(loop, self.ext)
+        stages = getattr(loop, "stages", None)
+        reasons = stage_reasons(stages)
+        # the true bounds only hold inside the workspace; the stages may break the theorems' assumptions
+        applies = bound_applies(loop) and not left and not reasons
+        u_win = w["u"][win]
         out.update({
-            "bound_applies_reason": "; ".join(reasons) if reasons else None,
-            "u_needed": stages["u_needed"],
-            "estimation_error_max": e_max,
-            "estimation_error_rms": e_rms,
-            "time_saturated": _num(t_sat),
-            "saturated_fraction": _num(t_sat / (n * h)),
-            "chattering_applied": chattering(a["u_applied"][win], h),
-            "u_applied_max_abs": _num(np.max(np.abs(a["u_applied"]))),
+            "z0": [_num(x) for x in self.first["z"]],
+            "V1_initial": _num(self.first["V1"]),
+            "V1_final": _num(self.last["V1"]),
+            "settle_level": ms.settle_level,
+            "settle_time": ts,
+            # the same definition on |z_1| (law-independent: a rival law may have no V1)
+            "settle_time_z1": self.settle_z1.result(n, self.first["t"]),
+            "time_bound": tb,
+            "workspace_left": left,
+            "bound_applies": applies,
+            "beat_bound": (bool(ts <= tb) if applies and ts is not None and tb is not None else None),
+            "final_window_start": float(w["t"][win][0]),
+            "final_abs_z_max": final_abs_max(w["z"][win]),
+            "chattering": chattering(u_win, h),
+            "chattering_du_dt_var": du_dt_variance(u_win, h),
+            "chattering_zero_crossings": zero_crossing_rate(u_win, h),
+            "chattering_band_rms": band_rms(u_win, h, ms.chatter_band),
+            # effort(u, h), summed in blocks (_BlockSum)
+            "effort_abs": _num(h * self.abs_sum.result()),
+            "effort_sq": _num(h * self.sq_sum.result()),
+            "u_max_abs": _num(self.u_max),
+            "eps": self.eps,
+            "eps_entry_time": self.entry,  # eps_ball(t, V1, eps), batch by batch
+            "V1_min_after_entry": None if self.entry is None else _num(self.v_min),
+            "V1_max_after_entry": None if self.entry is None else _num(self.v_max),
+            "phi_hat_max": _num(self.phi_hat_max),
+            "phi_hat_final": _num(self.last["phi_hat"]),
+            "theorem3": None if left else theorem3_check(loop, w["V1"][win], w["phi_hat"][win]),
+            "certificate": certificate_summary(loop),
         })
-    return out
+        if stages is not None:  # the loop's sensor, observer, actuator (records.STAGE_FIELDS)
+            e_max, e_rms = estimation_error(w["z_hat"][win], w["z"][win])
+            t_sat = self.n_saturated * h  # saturated_time(u, stages, h)
+            out.update({
+                "bound_applies_reason": "; ".join(reasons) if reasons else None,
+                "u_needed": stages["u_needed"],
+                "estimation_error_max": e_max,
+                "estimation_error_rms": e_rms,
+                "time_saturated": _num(t_sat),
+                "saturated_fraction": _num(t_sat / (n * h)),
+                "chattering_applied": chattering(w["u_applied"][win], h),
+                "u_applied_max_abs": _num(self.u_applied_max),
+            })
+        return out
+
+
+class MetricsStream:
+    """The metrics of a run computed as its batches arrive, in memory that does not grow with the run.
+
+        stream = MetricsStream(info, n_total)      # n_total: the most samples the run can have
+        for batch in batches: stream.update(batch.loops)   # {loop name: {field: array}}
+        metrics = stream.result(status)            # compute_metrics' dict
+
+    Kept: per loop, running sums, extremes and first/last values for the whole-run metrics, and the
+    last ceil(final_fraction n_total) + 2 samples of the window fields (t, z, u, V1, phi_hat, z_hat,
+    u_applied) for the final-window ones, plus up to one batch. n_total None keeps every window sample.
+    Equal to :func:`compute_metrics` of the concatenated arrays (a replay) bit for bit, whatever the
+    batches; against the definitions on whole arrays (effort's np.sum) effort_abs and effort_sq agree to
+    rounding (one rounding per 4096 samples, _BlockSum), every other metric exactly.
+    """
+
+    def __init__(self, info: RunInfo, n_total: int | None = None):
+        ff = info.metric_settings.final_fraction
+        # the window holds the samples with t_k >= t_0 + (1 - ff) n h, at most ff n + 1 of them (+1 for rounding)
+        window = None if n_total is None else int(math.ceil(ff * n_total)) + 2
+        self.info = info
+        self.loops = {lp.name: _LoopStream(info, lp, window) for lp in info.loops}
+
+    def update(self, loops: dict) -> None:
+        for name, stream in self.loops.items():
+            stream.update(loops[name])
+
+    def result(self, status: str) -> dict:
+        """{"status", "n_samples", "duration" (s), "loops": {name: loop metrics}}."""
+        per = {name: s.result() for name, s in self.loops.items()}
+        n = max((m["n_samples"] for m in per.values()), default=0)
+        return {"status": status, "n_samples": n, "duration": _num(n * self.info.period), "loops": per}
+
+
+def loop_metrics(info: RunInfo, loop, arrays: dict) -> dict:
+    """All metrics of one loop from its whole arrays (see the functions above for each definition)."""
+    s = _LoopStream(info, loop, None)
+    s.update(arrays)
+    return s.result()
 
 
 def compute_metrics(info: RunInfo, loops: dict, status: str) -> dict:
@@ -360,6 +538,6 @@ def compute_metrics(info: RunInfo, loops: dict, status: str) -> dict:
 
     loops: {loop name: {field: array}} with z (n, r) and the other fields (n,), as logged.
     """
-    per = {lp.name: loop_metrics(info, lp, loops[lp.name]) for lp in info.loops}
-    n = max((m["n_samples"] for m in per.values()), default=0)
-    return {"status": status, "n_samples": n, "duration": _num(n * info.period), "loops": per}
+    stream = MetricsStream(info)
+    stream.update(loops)
+    return stream.result(status)

@@ -41,7 +41,8 @@ time) saves the whole run state.
 
 Outcomes. A run ends "completed", "diverged" (NaN or |z| beyond ``divergence_limit`` at a sample,
 a MuJoCo warning), or "interrupted" (Ctrl-C: :meth:`Run.interrupted` keeps the samples of the
-batch cut short); :class:`RunResult` holds every sample. An exception inside the callback comes out
+batch cut short); :class:`RunResult` holds every sample when the Run keeps them (``keep_samples``:
+``simulate`` does, the scenario runner only when asked). An exception inside the callback comes out
 as :class:`CallbackError`. The callback that was installed before the run is always put back
 (:func:`control_callback`).
 """
@@ -76,18 +77,16 @@ _SCALARS = tuple(f for f in LOOP_FIELDS if f not in ("t", "z"))
 class RunResult:
     """What a run produced. loops: {loop name: {field: array}} (LOOP_FIELDS, and STAGE_FIELDS for a loop
     with stages; z (n, r), z_measured (n, m), z_hat (n, r), others (n,));
-    body_pos (n, nbody, 3), body_quat (n, nbody, 4): the same arrays the sinks received."""
+    body_pos (n, nbody, 3), body_quat (n, nbody, 4): the same arrays the sinks received. loops,
+    body_pos and body_quat are None for a run that did not keep its samples (``Run(keep_samples=False)``)."""
 
     status: str
     message: str
     info: RunInfo
-    loops: dict
-    body_pos: np.ndarray
-    body_quat: np.ndarray
-
-    @property
-    def n_samples(self) -> int:
-        return int(len(next(iter(self.loops.values()))["t"]))
+    loops: dict | None
+    body_pos: np.ndarray | None
+    body_quat: np.ndarray | None
+    n_samples: int
 
 
 def steps_per_period(period: float, physics_step: float) -> int:
@@ -482,11 +481,13 @@ class Run:
     ``info`` (RunInfo) describes the run before the first sample. ``step`` advances one batch and
     ends the run "completed" after the last one or "diverged" when the simulation stopped;
     ``stop(status, message)`` ends it early (interrupted, failed) and returns the samples the
-    interrupted batch had recorded. Every batch returned is also kept for :meth:`result`.
+    interrupted batch had recorded. With ``keep_samples`` every batch returned is also kept for
+    :meth:`result`; without, the run holds no sample once its batch is handed on (flat memory: the
+    consumer streams them, e.g. to the logs and ftstab_mj.metrics.MetricsStream).
     """
 
     def __init__(self, sim: Simulation, duration: float, batch_size: int = 1000, scenario_dict: dict | None = None,
-                 metric_settings: MetricSettings | None = None):
+                 metric_settings: MetricSettings | None = None, keep_samples: bool = False):
         if isinstance(batch_size, bool) or not isinstance(batch_size, (int, np.integer)) or batch_size < 1:
             raise ParameterError("batch_size", "an integer >= 1", batch_size)
         self.sim, self.batch_size = sim, int(batch_size)
@@ -495,6 +496,7 @@ class Run:
         self.status: str | None = None  # None while running
         self.message = ""
         self.done = 0
+        self.keep_samples = bool(keep_samples)
         self._batches: list[SampleBatch] = []
 
     @property
@@ -532,22 +534,26 @@ class Run:
 
     def _keep(self, batch: SampleBatch, emit=None) -> SampleBatch:
         with critical():
-            self._batches.append(batch)
+            if self.keep_samples:
+                self._batches.append(batch)
             self.done += len(batch)
             if emit is not None:
                 emit(batch)
         return batch
 
     def result(self) -> RunResult:
-        """Every sample of the finished run, with its status and message."""
+        """Every sample of the finished run (None without keep_samples), with its status and message."""
         if not self.finished:
             raise RuntimeError("the run has not ended: step it until run.finished, or stop it")
+        if not self.keep_samples:
+            return RunResult(status=self.status, message=self.message, info=self.info, loops=None,
+                             body_pos=None, body_quat=None, n_samples=self.done)
         batches = [b for b in self._batches if len(b)] or [self.sim.take_batch()]
         loops = {name: {f: np.concatenate([b.loops[name][f] for b in batches]) for f in fields}
                  for name, fields in batches[0].loops.items()}
         return RunResult(status=self.status, message=self.message, info=self.info, loops=loops,
                          body_pos=np.concatenate([b.body_pos for b in batches]),
-                         body_quat=np.concatenate([b.body_quat for b in batches]))
+                         body_quat=np.concatenate([b.body_quat for b in batches]), n_samples=self.done)
 
 
 def simulate(plant: Plant, loops, duration: float, period: float, physics_step: float, integrator: str = "euler",
@@ -561,7 +567,7 @@ def simulate(plant: Plant, loops, duration: float, period: float, physics_step: 
     record a run (sinks, metrics), drive a :class:`Run` (ftstab_mj.scenario.run.record).
     """
     sim = Simulation(plant, loops, period, physics_step, integrator, divergence_limit, native)
-    run = Run(sim, duration, batch_size)
+    run = Run(sim, duration, batch_size, keep_samples=True)
     with sim.installed():
         try:
             while not run.finished:

@@ -97,11 +97,11 @@ def rrd_rows(path, entity: str) -> int:
     return sum(int(n) for n in re.findall(rf"with (\d+) rows .* - {re.escape(entity)} -", printed.stdout))
 
 
-def record_run(plant, loops, duration, period, physics_step, sinks=(), metrics=None, batch_size=1000,
+def record_run(plant, loops, duration, period, physics_step, sinks=(), metrics=False, batch_size=1000,
                scenario_dict=None, **sim_kw):
     """A run of ``loops`` on ``plant`` recorded by ``sinks`` (the scenario runner's record): its RunResult."""
     from ftstab_mj.scenario.run import record
     from ftstab_mj.sim import Run, Simulation
 
     sim = Simulation(plant, loops, period, physics_step, **sim_kw)
-    return record(Run(sim, duration, batch_size, scenario_dict), sinks, metrics)[0]
+    return record(Run(sim, duration, batch_size, scenario_dict, keep_samples=True), sinks, metrics)[0]

@@ -85,7 +85,7 @@ def run_interrupted(sc, at, batch):
     stop = Interrupter(at)
     sink = Collector(stop, batch)
     try:
-        run = run_scenario(sc, (sink,))
+        run = run_scenario(sc, (sink,), keep_samples=True)
     except KeyboardInterrupt:
         pytest.fail(f"a Ctrl-C at line {at} of the batch came out of the run instead of ending it as interrupted")
     finally:
@@ -103,7 +103,7 @@ def test_a_ctrl_c_at_every_line_of_a_batch_hands_out_only_computed_samples(path,
         settings.append("sim.integrator=rk4")
     sc = load_scenario(ROOT / "scenarios" / "cart_r2_robust.toml", settings)
     ref_sink = Collector()
-    reference = run_scenario(sc, (ref_sink,))
+    reference = run_scenario(sc, (ref_sink,), keep_samples=True)
     ref = ref_sink.samples("cart")
     _, _, counter = run_interrupted(sc, -1, batch)  # how many lines the batch runs
     assert counter.count > 20

@@ -33,7 +33,7 @@ def test_loading_and_running_a_scenario_compiles_the_plant_once(monkeypatch):
     monkeypatch.setattr(Plant, "compile", counted)
     sc = load_scenario(ROOT / "scenarios" / "cart_r2_robust.toml", ["sim.duration=0.05"])
     assert calls == []  # validation builds the plant, it does not compile it
-    run = run_scenario(sc)
+    run = run_scenario(sc, keep_samples=True)
     assert run.result.status == "completed" and calls == ["cart"]
 
 
@@ -44,7 +44,7 @@ def test_simulate_returns_the_samples_and_the_status_the_runner_records():
     s = sc.sim
     res = simulate(make_plant(sc.plant.model, sc.plant.params), sc.loops, s.duration, s.period, s.physics_step,
                    s.integrator, divergence_limit=s.divergence_limit)
-    recorded = run_scenario(sc)
+    recorded = run_scenario(sc, keep_samples=True)
     assert res.status == recorded.result.status == "completed"
     for f, a in res.loops["cart"].items():
         np.testing.assert_array_equal(a, recorded.result.loops["cart"][f], err_msg=f)

@@ -12,7 +12,6 @@ from ftstab_mj.disturbances import Signal
 from ftstab_mj.errors import CallbackError
 from ftstab_mj.logs import McapSink, RerunSink
 from ftstab_mj.logs.reader import read_log
-from ftstab_mj.metrics import compute_metrics
 from ftstab_mj.plants import make_plant
 from ftstab_mj.records import DIVERGED, FAILED, INTERRUPTED
 from ftstab_mj.sim import LoopSpec
@@ -31,7 +30,7 @@ def test_logged_cart_samples_match_the_chain_dynamics(tmp_path):
     loops = [LoopSpec("cart", controller=RobustLaw(HONG, phibar=1.0, gamma_m=0.5), disturbance=phi, gain=gamma, z0=(1.0, 0.0))]
     path = tmp_path / "cart.mcap"
     record_run(make_plant("cart", {"mass": 2.0}), loops, duration=3.0, period=h, physics_step=dt,
-               sinks=[McapSink(path)], batch_size=200, metrics=compute_metrics)
+               sinks=[McapSink(path)], batch_size=200, metrics=True)
     a = read_log(path).loops["cart"]
     assert len(a["t"]) == 600
     # the robust law's estimates are its constants (laws.py: same meaning for every law)
@@ -48,7 +47,7 @@ def test_logged_cart_samples_match_the_chain_dynamics(tmp_path):
 def _run(tmp_path, loops, duration=1.0, **kw):
     mcap, rrd = tmp_path / "run.mcap", tmp_path / "run.rrd"
     result = record_run(make_plant("cart"), loops, duration=duration, period=0.01, physics_step=0.01,
-                        sinks=[McapSink(mcap), RerunSink(rrd)], batch_size=20, metrics=compute_metrics, **kw)
+                        sinks=[McapSink(mcap), RerunSink(rrd)], batch_size=20, metrics=True, **kw)
     return result, mcap, rrd
 
 
@@ -92,7 +91,7 @@ def test_interrupted_run_is_finalized_with_its_status(tmp_path):
     calls = []
     mcap = tmp_path / "run.mcap"
     result = record_run(make_plant("cart"), loops, duration=1.0, period=0.01, physics_step=0.01,
-                        sinks=[McapSink(mcap), _CtrlC(calls)], batch_size=20, metrics=compute_metrics)
+                        sinks=[McapSink(mcap), _CtrlC(calls)], batch_size=20, metrics=True)
     assert result.status == INTERRUPTED and calls[-1] == INTERRUPTED
     log = read_log(mcap)
     assert log.complete and log.recorded["status"] == INTERRUPTED and log.n_samples == 60

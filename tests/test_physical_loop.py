@@ -67,17 +67,17 @@ def test_stages_at_their_defaults_leave_every_scenario_bit_identical(name, path)
 
 
 def test_saturation_above_need_is_the_unsaturated_run_and_below_it_the_guarantee_does_not_apply():
-    free = run_scenario(load_scenario(ROBUST, ["sim.duration=5"]))
+    free = run_scenario(load_scenario(ROBUST, ["sim.duration=5"]), keep_samples=True)
     m_free = free.metrics["loops"]["cart"]
-    probe = run_scenario(load_scenario(ROBUST, ["sim.duration=0.01", "loops.cart.actuator.u_max=1e9"]))
+    probe = run_scenario(load_scenario(ROBUST, ["sim.duration=0.01", "loops.cart.actuator.u_max=1e9"]), keep_samples=True)
     need = probe.metrics["loops"]["cart"]["u_needed"]  # 7.459: sampled sup of |u| over V1 <= V1(z0)
     # the estimate covers what the run asks (V1 decreases, so the run stays in V1 <= V1(z0))
     assert m_free["u_max_abs"] <= need
-    above = run_scenario(load_scenario(ROBUST, ["sim.duration=5", f"loops.cart.actuator.u_max={1.01 * need}"]))
+    above = run_scenario(load_scenario(ROBUST, ["sim.duration=5", f"loops.cart.actuator.u_max={1.01 * need}"]), keep_samples=True)
     _same_samples(free.result, above.result)
     m = above.metrics["loops"]["cart"]
     assert m["bound_applies"] is True and m["bound_applies_reason"] is None and m["time_saturated"] == 0.0
-    below = run_scenario(load_scenario(ROBUST, ["sim.duration=5", "loops.cart.actuator.u_max=3"]))
+    below = run_scenario(load_scenario(ROBUST, ["sim.duration=5", "loops.cart.actuator.u_max=3"]), keep_samples=True)
     m = below.metrics["loops"]["cart"]
     assert m["bound_applies"] is False and "needs |u| up to 7.459 > u_max = 3" in m["bound_applies_reason"]
     assert m["time_saturated"] > 0 and m["u_applied_max_abs"] == 3.0 and m["u_max_abs"] == 6.0
@@ -90,7 +90,7 @@ def test_differentiator_in_closed_loop_on_the_cart_keeps_levants_accuracy():
     # Tolerance 0.1 as in tests/test_loop_stages.py. Measured: 2.04, 1.01 and 0.92, 0.46.
     def errors(sets):
         run = run_scenario(load_scenario(ROBUST, POSITION + ["loops.cart.observer.L=5", "metrics.final_fraction=0.5"]
-                                         + sets))
+                                         + sets), keep_samples=True)
         return run.metrics["loops"]["cart"]["estimation_error_max"]
 
     hs = [0.00025, 0.0005, 0.001, 0.002]
@@ -112,7 +112,7 @@ def test_output_feedback_converges_and_its_accuracy_follows_the_noise_as_the_the
     for e in eps:
         run = run_scenario(load_scenario(ROBUST, POSITION + [
             f"loops.cart.sensor.noise={e}", "loops.cart.observer.L=5", "sim.period=0.00025",
-            "sim.physics_step=0.00025", "metrics.final_fraction=0.5"]))
+            "sim.physics_step=0.00025", "metrics.final_fraction=0.5"]), keep_samples=True)
         m = run.metrics["loops"]["cart"]
         assert run.metrics["status"] == "completed" and m["bound_applies"] is False
         acc.append(m["final_abs_z_max"])

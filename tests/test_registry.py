@@ -89,7 +89,7 @@ def test_a_law_registered_in_one_module_runs_through_loader_sim_metrics_and_logs
 
     sc = scenario_from_dict(_raw(law="toy_pi", pd=[3.0, 3.0], ki=1.0), "toy.toml")
     assert scenario_to_dict(sc)["loops"]["cart"]["controller"] == {"law": "toy_pi", "pd": [3.0, 3.0], "ki": 1.0}
-    run = run_scenario(sc, [McapSink(tmp_path / "toy.mcap")])
+    run = run_scenario(sc, [McapSink(tmp_path / "toy.mcap")], keep_samples=True)
     res = run.result
     assert res.status == "completed" and res.n_samples == 2000
     (loop,) = res.info.loops
@@ -114,7 +114,7 @@ def test_without_integral_the_toy_law_keeps_the_static_offset(toy_law):
     """The control experiment of the one above: same law, ki defaulted to 0 -> z_1 = phi / pd_1."""
     sc = scenario_from_dict(_raw(law="toy_pi", pd=[3.0, 3.0]), "toy.toml")
     assert sc.loops[0].controller.ki == 0.0  # the Param default, filled in by the schema
-    z = run_scenario(sc).result.loops["cart"]["z"]
+    z = run_scenario(sc, keep_samples=True).result.loops["cart"]["z"]
     assert z[-1, 0] == pytest.approx(0.1, rel=1e-3)
 
 
@@ -181,7 +181,7 @@ def test_a_plant_registered_in_one_module_is_a_scenario_model(toy_plant):
     for model in ("heavy_cart", "cart"):
         raw = _raw(model=model, **robust)
         raw["sim"]["duration"] = 0.5
-        runs[model] = run_scenario(scenario_from_dict(raw, "toy.toml")).result
+        runs[model] = run_scenario(scenario_from_dict(raw, "toy.toml"), keep_samples=True).result
     assert make_plant("heavy_cart").params["mass"] == 3.0
     assert runs["heavy_cart"].info.scenario["plant"]["model"] == "heavy_cart"
     # the cart's actuator gain and disturbance scale are its mass: in chain units both runs coincide

@@ -20,18 +20,18 @@ from ftstab_mj.scenario.schema import Scenario
 
 @dataclass
 class ScenarioRun:
-    """A finished run: the scenario, the sim's RunResult (status, message, info, samples) and the
-    metrics handed to the sinks (ftstab_mj.metrics.compute_metrics of the samples)."""
+    """A finished run: the scenario, the sim's RunResult (status, message, info, and the samples when
+    kept) and the metrics handed to the sinks (ftstab_mj.metrics.MetricsStream of the batches)."""
 
     scenario: Scenario
     result: object  # ftstab_mj.sim.RunResult
     metrics: dict
 
 
-def record(run, sinks=(), metrics=None):
+def record(run, sinks=(), metrics: bool = False):
     """Drive ``run`` (a ftstab_mj.sim.Run) to its end with every sink observing it: open with
-    run.info, write each batch, then close with the status and ``metrics(info, samples, status)``
-    (e.g. compute_metrics; {} when None). Returns (RunResult, metrics dict).
+    run.info, write each batch, then close with the status and, with ``metrics``, the metrics streamed
+    from the batches (ftstab_mj.metrics.MetricsStream; {} without). Returns (RunResult, metrics dict).
 
     A signal (Ctrl-C, SIGTERM, SIGHUP: ftstab_mj.interrupts) ends the run "interrupted" (the
     samples of the batch cut short are written, metrics computed, sinks closed). It never cuts the
@@ -41,9 +41,14 @@ def record(run, sinks=(), metrics=None):
     are those of the samples. Any other exception (the controller's CallbackError, a sink's
     LogWriteError) closes the sinks "failed" after writing what was recorded, and is re-raised.
     """
+    from ftstab_mj.metrics import MetricsStream
+
+    stream = MetricsStream(run.info, run.n_total) if metrics else None
     opened = []
 
-    def emit(batch):
+    def emit(batch):  # in the run's critical block: the stream and the logs get each batch whole
+        if stream is not None and len(batch):
+            stream.update(batch.loops)
         _write(opened, batch)
 
     with interrupts.run_scope():
@@ -69,7 +74,7 @@ def record(run, sinks=(), metrics=None):
             raise
         result = run.result()
         try:
-            final = metrics(result.info, result.loops, result.status) if metrics else {}
+            final = stream.result(result.status) if stream else {}
         except BaseException as exc:  # the logs must still end with a status, never without /metrics
             _close(opened, FAILED, {}, f"metrics could not be computed: {type(exc).__name__}: {exc}", quiet=True)
             raise
@@ -105,26 +110,27 @@ def _close(sinks, status, metrics, message, quiet: bool = False) -> None:
         raise first
 
 
-def run_scenario(sc: Scenario, sinks=()) -> ScenarioRun:
-    """Run the scenario; every sink observes it and is closed with the metrics.
+def run_scenario(sc: Scenario, sinks=(), keep_samples: bool = False) -> ScenarioRun:
+    """Run the scenario; every sink observes it and is closed with the metrics (streamed: memory
+    does not grow with the run). keep_samples: also keep every sample in ``result`` (RunResult.loops).
 
     Raises ftstab_mj.errors.CallbackError when the controller raised (sinks closed as "failed").
     """
-    from ftstab_mj.metrics import compute_metrics
     from ftstab_mj.plants import make_plant
     from ftstab_mj.sim import Run, Simulation
 
     s = sc.sim
     sim = Simulation(make_plant(sc.plant.model, sc.plant.params), sc.loops, period=s.period,
                      physics_step=s.physics_step, integrator=s.integrator, divergence_limit=s.divergence_limit)
-    run = Run(sim, s.duration, scenario_dict=scenario_to_dict(sc), metric_settings=sc.metrics)
-    result, metrics = record(run, sinks, compute_metrics)
+    run = Run(sim, s.duration, scenario_dict=scenario_to_dict(sc), metric_settings=sc.metrics,
+              keep_samples=keep_samples)
+    result, metrics = record(run, sinks, metrics=True)
     return ScenarioRun(sc, result, metrics)
 
 
-def run_scenario_dict(raw: dict, sinks=(), source: str = "<recorded scenario>") -> ScenarioRun:
+def run_scenario_dict(raw: dict, sinks=(), source: str = "<recorded scenario>", keep_samples: bool = False) -> ScenarioRun:
     """Validate a resolved scenario dict (e.g. a log's /scenario message) and run it."""
-    return run_scenario(scenario_from_dict(raw, source), sinks)
+    return run_scenario(scenario_from_dict(raw, source), sinks, keep_samples)
 
 
 def verify_log(log):
@@ -144,13 +150,13 @@ def verify_log(log):
     if user_model:  # a user model is re-run from the XML the log holds, never from the file it names
         check_untrusted_model(log.info.model_xml, f"{log.path}: /run_info model_xml")
         with recorded_model(model, log.info.model_xml):
-            rerun = run_scenario_dict(scenario, sinks=(), source=f"{log.path} /scenario").result
+            rerun = run_scenario_dict(scenario, sinks=(), source=f"{log.path} /scenario", keep_samples=True).result
     elif model not in PLANTS:  # a log is untrusted: re-running it must not read a local file it names
         raise LogError(f"{log.path}: /scenario plant.model: --verify re-runs the registered plants, or a user "
                        f"model from the XML its log holds ({', '.join(PLANTS)}), found {str(model)[:80]!r}; "
                        "re-run that scenario with ftstab run")
     else:
-        rerun = run_scenario_dict(scenario, sinks=(), source=f"{log.path} /scenario").result
+        rerun = run_scenario_dict(scenario, sinks=(), source=f"{log.path} /scenario", keep_samples=True).result
     if rerun.status == INTERRUPTED:  # stopped by a signal: nothing to compare (not a difference)
         raise last_signal() or Interrupted()
     return compare_log(log, rerun)
