@@ -1,5 +1,9 @@
 """Metrics of a run, computed from the logged arrays only (same code live and on replay).
 
+A run streams them (:class:`MetricsStream`: each batch reduced as it comes, only the final window's
+samples kept); a replay hands the log's arrays in one batch (:func:`compute_metrics`). Both give the
+same bits whatever the batching (the effort sums are block sums, _BlockSum).
+
 :func:`compute_metrics` maps a :class:`~ftstab_mj.records.RunInfo`, the samples of every loop
 ({loop name: {field: array}}, fields of ``records.LOOP_FIELDS``, and ``STAGE_FIELDS`` for a loop
 with a sensor, observer or actuator model) and the run status to a plain
