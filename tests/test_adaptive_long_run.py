@@ -18,7 +18,7 @@ from ftstab_mj.scenario.run import run_scenario
 
 
 def _run(name, duration):
-    return run_scenario(load_scenario(find_scenario(name), [f"sim.duration={duration}"]))
+    return run_scenario(load_scenario(find_scenario(name), [f"sim.duration={duration}"]), keep_samples=True)
 
 
 def test_the_adaptive_law_matches_the_robust_accuracy_only_in_the_shipped_10_s():

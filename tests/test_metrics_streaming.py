@@ -8,7 +8,7 @@ import pytest
 
 from ftstab_mj.logs import McapSink
 from ftstab_mj.logs.reader import read_log
-from ftstab_mj.metrics import (MetricsStream, _finite_or_nan, band_rms, chattering, compute_metrics, effort, eps_ball,
+from ftstab_mj.metrics import (MetricsStream, _BlockSum, _finite_or_nan, band_rms, chattering, compute_metrics, effort, eps_ball,
                                final_abs_max, saturated_time, settle_time, workspace_left)
 from ftstab_mj.records import LOOP_FIELDS
 from ftstab_mj.scenario import load_scenario, shipped_scenarios
@@ -35,9 +35,11 @@ def _whole_array_checks(info, lp, arrays, m):
     assert (m["eps_entry_time"], m["V1_min_after_entry"], m["V1_max_after_entry"]) == (entry, v_min, v_max)
     e_abs, e_sq, u_max = effort(u, h)
     assert m["u_max_abs"] == u_max
-    # np.sum (pairwise) vs block sums: rounding of n terms, far below 1e-12 relative for n <= 1e6
+    # block sums (_BlockSum): np.sum's bits up to 32768 samples, rounding beyond (1e-12 relative)
     assert m["effort_abs"] == pytest.approx(e_abs, rel=1e-12, abs=0.0)
     assert m["effort_sq"] == pytest.approx(e_sq, rel=1e-12, abs=0.0)
+    if len(t) <= 32768:
+        assert (m["effort_abs"], m["effort_sq"]) == (e_abs, e_sq)
     assert m["workspace_left"] == workspace_left(lp, z, u)
     assert m["phi_hat_max"] == float(np.max(a["phi_hat"])) and m["V1_final"] == float(V1[-1])
     win = t >= t[0] + (1.0 - ms.final_fraction) * len(t) * h
@@ -68,6 +70,22 @@ def test_streamed_metrics_are_the_whole_arrays_metrics_and_replays(name, path, t
     assert stream.result(res.status) == run.metrics
 
 
+def test_block_sums_do_not_depend_on_the_batching():
+    x = np.random.default_rng(1).lognormal(size=100_000)
+    whole, cut = _BlockSum(), _BlockSum()
+    whole.update(x)
+    edges = np.cumsum(np.random.default_rng(2).integers(1, 5000, size=100))
+    for part in np.split(x, edges[edges < len(x)]):
+        cut.update(part)
+    assert cut.result() == whole.result()
+    # against np.sum of the whole array: one rounding per block (4 blocks) on top of np.sum's own
+    assert whole.result() == pytest.approx(np.sum(x), rel=1e-14, abs=0.0)
+    assert _BlockSum.BLOCK >= 1000 and whole.result() != 0.0
+    short = _BlockSum()
+    short.update(x[:_BlockSum.BLOCK])
+    assert short.result() == np.sum(x[:_BlockSum.BLOCK])  # one block: np.sum's bits, as logs before streaming
+
+
 def test_a_run_keeps_no_sample_unless_asked():
     sc = _short(CART, samples=10)
     assert run_scenario(sc).result.loops is None
@@ -81,7 +99,8 @@ def test_memory_of_a_run_does_not_grow_with_its_samples():
     # the body poses (7 per body): >= 150 bytes (the issue measured 378 B of RSS per sample). Kept, 10^5
     # samples would take >= 15 MB. Streaming holds: one batch (1000 samples, ~0.4 MB with its copies),
     # the final window's ring (final_fraction 0.2: 20,002 samples of t, z, u, V1, phi_hat = 48 B each,
-    # 0.96 MB) and the batch it may overhang by, < 2 MB in all; the threshold 4 MB (under a third of the
+    # 0.96 MB) and the batch it may overhang by, the two effort block sums' carries (< 2 x 32768 x 8 B
+    # = 0.5 MB, twice while a batch is appended), < 2.5 MB in all; the threshold 4 MB (under a third of the
     # retained 15 MB, well below the 37.8 MB the issue measured) leaves room for interpreter noise.
     sc = load_scenario(CART, ["sim.duration=100", "sim.period=0.001", "sim.physics_step=0.001"])
     assert sc.metrics.final_fraction == 0.2
