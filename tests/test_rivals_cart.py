@@ -102,7 +102,7 @@ def test_implicit_robust_law_on_the_cart_follows_the_equivalent_control():
         raw = read_toml(ROOT / "scenarios" / "cart_r2_robust.toml", "scenario")
         raw["loops"]["cart"]["gain"]["amplitude"] = 0.2
         raw["loops"]["cart"]["controller"].update(gamma_m=0.7, discretization=disc)
-        run = run_scenario(scenario_from_dict(raw, f"<{disc}>"))
+        run = run_scenario(scenario_from_dict(raw, f"<{disc}>"), keep_samples=True)
         tv[disc] = run.metrics["loops"]["cart"]["chattering"]
         runs[disc] = run.result.loops["cart"]
     assert tv["explicit"] >= 10 * tv["implicit"], tv
