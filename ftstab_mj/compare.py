@@ -170,7 +170,7 @@ class CompareTask:
     def __call__(self, index: int, params) -> dict:
         from ftstab_mj.scenario.run import run_scenario
 
-        run = run_scenario(self.scenario(index, params), keep_samples=True)  # the chattering indices read u
+        run = run_scenario(self.scenario(index, params), keep_samples=bool(self.series and params[3]))  # a series reads u, z
         out = {"status": run.result.status, "error": "" if run.result.status == COMPLETED else run.result.message,
                "metrics": run.metrics}
         if self.series and params[3]:

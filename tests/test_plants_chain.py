@@ -58,7 +58,7 @@ def test_computed_bounds_hold_along_the_run_with_margins(name, capsys):
     sc = load_scenario(find_scenario(name))
     from ftstab_mj.scenario.run import run_scenario
 
-    run = run_scenario(sc)
+    run = run_scenario(sc, keep_samples=True)
     assert run.result.status == "completed"
     for info in run.result.info.loops:
         s = run.result.loops[info.name]
