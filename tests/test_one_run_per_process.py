@@ -147,9 +147,13 @@ def dask_cluster(tmp_path):
                                "--scheduler-file", str(info)], **quiet)]
     try:
         deadline = time.monotonic() + 60
-        while not info.exists() and time.monotonic() < deadline:
-            time.sleep(0.05)
-        address = json.loads(info.read_text())["address"]
+        address = None
+        while address is None and time.monotonic() < deadline:
+            try:  # the scheduler writes the file in more than one go: wait until it parses
+                address = json.loads(info.read_text())["address"]
+            except (FileNotFoundError, json.JSONDecodeError, KeyError):
+                time.sleep(0.05)
+        assert address, "the dask scheduler wrote no scheduler file within 60 s"
         procs.append(subprocess.Popen([dask, "worker", address, "--nthreads", "2", "--no-nanny", "--no-dashboard"],
                                       **quiet))
         from distributed import Client
