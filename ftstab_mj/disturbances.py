@@ -4,7 +4,7 @@ A :class:`Signal` is ``offset + amplitude * shape(t)`` with ``|shape| <= 1``, so
 known exactly (:meth:`Signal.bounds`) and a scenario can be checked against the bounds a robust
 law assumes. ``worst_case`` is state dependent: ``offset + amplitude * sign(dV1/dz_r)``, the
 disturbance that pushes V1 up hardest, since its contribution to dV1/dt is dV1/dz_r * phi
-(NOTES.md section 4; NOTES and the issues print the opposite sign, which helps the controller).
+(it maximises dV1/dt; the opposite sign, sometimes printed, helps the controller).
 
 Times in seconds, frequencies in Hz. Every random signal takes its randomness from ``seed`` only.
 """

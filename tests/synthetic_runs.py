@@ -24,7 +24,7 @@ CART_XML = """<mujoco>
   </worldbody>
 </mujoco>"""
 
-HONG2 = {"r": 2, "k": -0.2, "gains": (1.0, 2.0), "form": "full"}  # c ~ 1.33 (NOTES.md section 5)
+HONG2 = {"r": 2, "k": -0.2, "gains": (1.0, 2.0), "form": "full"}  # c ~ 1.33 (the reference table of the certificate)
 ADAPTIVE = {"kappa": 1.0, "delta": 0.1, "rate": 1.0, "eta": 0.5, "eps": 0.01}
 
 

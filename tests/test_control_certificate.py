@@ -13,7 +13,7 @@ from ftstab_mj.control.hong_terms import Terms
 from ftstab_mj.control.interval import Exp, Iv
 from ftstab_mj.errors import ParameterError
 
-# NOTES.md section 5 (max over 2e5 samples of the unit level set), given to 3-4 digits
+# The reference table of the certificate (max over 2e5 samples of the unit level set), given to 3-4 digits
 REFERENCE = [
     (2, -0.2, (1.0, 2.0), 1.329, 0.8889),
     (3, -0.1, (1.0, 1.7, 5.0), 0.574, 0.9474),

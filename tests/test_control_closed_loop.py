@@ -11,7 +11,7 @@ from ftstab_mj.disturbances import Signal
 from ftstab_mj.errors import ParameterError
 from ftstab_mj.ideal_chain import chain_transition, simulate_chain
 
-CERTIFIED = {2: (-0.2, (1.0, 2.0)), 3: (-0.1, (1.0, 1.7, 5.0))}  # NOTES.md section 5 table
+CERTIFIED = {2: (-0.2, (1.0, 2.0)), 3: (-0.1, (1.0, 1.7, 5.0))}  # the certificate's reference table
 
 
 def hong(r):
@@ -119,8 +119,8 @@ def test_robust_neighbourhood_shrinks_with_period(r, case):
 
 @pytest.mark.parametrize("r", [2, 3])
 def test_robust_at_its_bounds_under_worst_case_is_the_nominal_chain(r):
-    """gamma = gamma_m and phi = phibar sign(dV1/dz_r): since sign(u0) = -sign(dV1/dz_r) (NOTES.md
-    section 2), gamma u + phi = u0 + phibar sign(u0) - phibar sign(u0) = u0 exactly, so the run is
+    """gamma = gamma_m and phi = phibar sign(dV1/dz_r): since sign(u0) = -sign(dV1/dz_r) (Hong's law
+    opposes the gradient), gamma u + phi = u0 + phibar sign(u0) - phibar sign(u0) = u0 exactly, so the run is
     the nominal law on the unperturbed chain, sample for sample, up to floating-point rounding."""
     z0 = np.zeros(r)
     z0[0] = 1.0

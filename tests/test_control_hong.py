@@ -112,7 +112,7 @@ def test_single_state_and_batch_agree():
 
 
 def test_nested_polynomial_and_gains_inverse():
-    # r = 3: y^3 + l3 y^2 + l3 l2 y + l3 l2 l1, Hurwitz iff l3 > l1 (NOTES.md section 2).
+    # r = 3: y^3 + l3 y^2 + l3 l2 y + l3 l2 l1, Hurwitz iff l3 > l1 (Routh-Hurwitz).
     np.testing.assert_allclose(nested_polynomial([2.0, 3.0, 5.0]), [1, 5, 15, 30])
     assert is_hurwitz([1.0, 2.0, 3.0]) and not is_hurwitz([3.0, 2.0, 1.0])
     assert is_hurwitz([1.0, 1.0]) and is_hurwitz([0.01, 100.0])  # r = 2: every positive pair

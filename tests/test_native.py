@@ -33,7 +33,7 @@ if not native.available():
         raise RuntimeError(f"FTSTAB_REQUIRE_NATIVE=1 but {native.UNAVAILABLE_REASON}")
 needs_kernel = pytest.mark.skipif(not native.available(), reason=f"native kernel: {native.UNAVAILABLE_REASON}")
 
-CONTROLLERS = {  # (r, k, gains) per form; the certified ones of NOTES.md section 5 among them
+CONTROLLERS = {  # (r, k, gains) per form; the certified ones of the reference table among them
     "full": [(1, -0.5, (2.0,)), (2, -0.2, (1.0, 2.0)), (3, -0.1, (1.0, 1.7, 5.0)), (4, -0.05, (1.0, 2.0, 3.0, 4.0)),
              (2, 0.0, (1.0, 2.0))],
     "simplified": [(2, -0.2, (1.0, 2.0)), (3, -0.1, (1.0, 1.7, 5.0))],

@@ -1,4 +1,4 @@
-"""The Lyapunov certificate of Theorem 1 and the bounds of Theorem 3 (NOTES.md sections 5-6).
+"""The Lyapunov certificate of Theorem 1 and the bounds of Theorem 3 (the paper's Theorems 1 and 3; formulas in this module).
 
 Full form. V1 is homogeneous of degree 2 + k and dV1/dt of degree 2 + 2k for the dilation
 z_i -> lam^p_i z_i, so R(z) = (dV1/dt) / V1^alpha, alpha = (2 + 2k)/(2 + k), has degree 0 and
@@ -490,7 +490,7 @@ class Theorem3Bounds:
 
 def theorem3_bounds(cert: Certificate, phibar: float, gamma_m: float, kappa: float, delta: float,
                     rate: float, eps: float) -> Theorem3Bounds:
-    """Phibar, Delta and the limsup bound on phi_hat (NOTES.md section 6). Needs a full-form certificate."""
+    """Phibar, Delta and the limsup bound on phi_hat (Theorem 3 of Harmouche, Laghrouche and Chitour). Needs a full-form certificate."""
     if not cert.certified:
         raise ParameterError("certificate", "a full-form certificate with c > 0", cert.c)
     for name, val in (("phibar", phibar), ("gamma_m", gamma_m), ("kappa", kappa), ("delta", delta),

@@ -1,4 +1,4 @@
-"""Hong's homogeneous finite-time controller for the chain of integrators (NOTES.md sections 2-3).
+"""Hong's homogeneous finite-time controller for the chain of integrators (the paper's full form and its Proposition 1, the simplified form).
 
 Plain NumPy, vectorised over leading batch axes: a state ``z`` has shape ``(..., r)``
 (``(r,)`` for one state, ``(n, r)`` for a batch) and every scalar output has shape ``(...)``.
@@ -101,7 +101,7 @@ class HongController:
     gains: tuple
     form: str = "full"
     check_hurwitz: bool = True
-    # Derived exponents, filled in __post_init__ (see NOTES.md section 2).
+    # Derived exponents, filled in __post_init__ (see the class docstring).
     p: np.ndarray = field(init=False, repr=False, compare=False)  # p_1..p_{r+1}, shape (r+1,)
     beta: np.ndarray = field(init=False, repr=False, compare=False)  # beta_0..beta_{r-1}, shape (r,)
     expo: np.ndarray = field(init=False, repr=False, compare=False)  # outer exponent of v_{i+1}, shape (r,)

@@ -1,4 +1,4 @@
-"""The cart on a slide joint (models/cart.xml, models/cart_integrating.xml), NOTES.md section 7.
+"""The cart on a slide joint (models/cart.xml, models/cart_integrating.xml), a chain of r = 2 or 3 integrators.
 
 Mass m (kg). The actuator gain is m, so with a gain factor g(t) (the LoopSpec's gamma signal):
 
