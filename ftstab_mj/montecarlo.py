@@ -146,6 +146,7 @@ def run_plant(task, loop: str, Z0: np.ndarray, engine="serial", workers=1, sched
         rows[i] = {"row": i, "z0": [float(x) for x in Z0[i]], "settle_time": ts, "time_bound": tb,
                    "ratio": ts / tb if math.isfinite(ts) and math.isfinite(tb) and tb > 0 else nan,
                    "V1_initial": num("V1_initial"), "V1_final": num("V1_final"), "u_max_abs": num("u_max_abs"),
+                   "bound_applies": bool(m.get("bound_applies")),
                    "status": "lost" if result is None else result["status"]}
         done += 1
         if progress:

@@ -94,6 +94,8 @@ def test_plant_worst_case_rerun_with_ftstab_run_gives_the_same_settling_time(tmp
     summary = json.loads(res.stdout)
     assert summary == json.loads((out / "montecarlo.json").read_text())
     assert (out / "montecarlo.png").stat().st_size > 0 and summary["states"] == 5
+    # cart_r2_robust runs within its assumed bounds: Theorem 2 applies and no state may exceed T(z0)
+    assert summary["bound_applies"] is True and summary["violations"] == 0
     worst = summary["worst"]
     z0 = "[" + ", ".join(repr(x) for x in worst["z0"]) + "]"
     rerun = run_cli("run", "cart_r2_robust", "--set", "sim.duration=4", "--set", f"loops.cart.z0={z0}",
