@@ -249,6 +249,17 @@ def cmd_replay(args) -> int:
     return 1 if failed else 0
 
 
+def cmd_report(args) -> int:
+    from ftstab_mj.report import check_out, report_data, write_report
+
+    check_out(args.out)  # a bad file name before the log is read
+    rep = report_data(_read_log(args.log))
+    write_report(rep, args.out)
+    panels = sum(len(p) for p in rep.loops.values())
+    print(f"wrote {args.out}: {rep.title.replace(chr(10), ', ')}; {len(rep.loops)} loop(s), {panels} panels")
+    return 0
+
+
 def cmd_check(args) -> int:
     from ftstab_mj.expectations import (PIN_HEADER, ExpectationError, check_metrics, load_expectations,
                                         pin_expectations, to_toml)
@@ -639,6 +650,16 @@ def build_parser() -> argparse.ArgumentParser:
     what.add_argument("--pin", metavar="OUT.toml", help="write OUT.toml: this log's metrics with the default "
                                                        "tolerances (ftstab_mj/expectations.py), to check later runs")
     ck.set_defaults(func=cmd_check)
+
+    rt = sub.add_parser("report", help="the figures of one run for a paper (PNG or self-contained HTML)",
+                        description="Draw from LOG.mcap, per loop: each z_i, u (and u0), V1 on a log axis with the "
+                                    "settle level and Theorem 1's envelope and T(z0) (nominal and robust laws with a "
+                                    "certificate), phi_hat and gamma_hat with Theorem 3's bounds (adaptive law); "
+                                    "axes in their units. FIG.html embeds the PNG (no network needed). What each "
+                                    "panel holds: ftstab_mj/report.py. Exit 2 on a log that cannot be read.")
+    rt.add_argument("log", metavar="LOG.mcap")
+    rt.add_argument("--out", required=True, metavar="FIG.png|FIG.html", help="the figure to write")
+    rt.set_defaults(func=cmd_report)
     r = sub.add_parser(
         "run", help="run a scenario file, write its logs, print its metrics",
         description="Run SCENARIO (a .toml file, or the name of a shipped scenario: see `ftstab list`), "
