@@ -61,15 +61,20 @@ def load_scenario(name_or_path, overrides=None):
     return load(find_scenario(str(name_or_path)), _overrides(overrides))
 
 
-def run(scenario_or_path, out=None, overrides=None, live=False) -> Result:
+def run(scenario_or_path, out=None, overrides=None, live=False, foxglove=None, realtime=False) -> Result:
     """Run a scenario (a Scenario, a shipped name or a .toml path) and return its :class:`Result`.
 
     out: a directory for ``<name>.mcap`` and ``<name>.rrd`` (None: no logs); overrides: as for
-    :func:`load_scenario` (not with a Scenario); live: False, True or "spawn" (a native Rerun
-    viewer), "serve" (a web viewer), or a rerun+http:// URL: streams the run as it happens.
+    :func:`load_scenario` (not with a Scenario); live: streams the run to Rerun as it happens, as
+    ``ftstab run --live`` does: False, True (a native viewer when there is a display, else "serve"),
+    "spawn", "serve" (a ``rerun --serve-web`` server on ports 9876/9090, left running), or a
+    rerun+http:// URL; foxglove: (host, port) of a Foxglove WebSocket server that publishes the
+    MCAP log's messages while the run lasts (needs ``out``; port 0: a free one); realtime: pace the
+    run to the wall clock. The samples and logs are the same as without them.
     Raises ScenarioError on bad input and CallbackError when the controller raised.
     """
     from ftstab_mj.logs import McapSink, RerunSink
+    from ftstab_mj.logs.live import LiveView
     from ftstab_mj.scenario import Scenario, scenario_to_dict
     from ftstab_mj.scenario.run import run_scenario
 
@@ -79,16 +84,21 @@ def run(scenario_or_path, out=None, overrides=None, live=False) -> Result:
         sc = scenario_or_path
     else:
         sc = load_scenario(scenario_or_path, overrides)
-    sinks, logs = [], {}
-    live = "spawn" if live is True else (live or None)
-    if out is not None:
-        out = Path(out)
-        out.mkdir(parents=True, exist_ok=True)
-        logs = {"mcap": out / f"{sc.name}.mcap", "rrd": out / f"{sc.name}.rrd"}
-        sinks += [McapSink(logs["mcap"]), RerunSink(logs["rrd"], live=live)]
-    elif live:
-        sinks.append(RerunSink(None, live=live))
-    done = run_scenario(sc, sinks, keep_samples=True)  # Result.samples
+    if foxglove is not None and out is None:
+        raise ValueError("foxglove: expected out= as well (the Foxglove server publishes what the MCAP log gets)")
+    view = LiveView(live, foxglove, realtime)
+    sinks, logs = list(view.sinks()), {}
+    try:
+        if out is not None:
+            out = Path(out)
+            out.mkdir(parents=True, exist_ok=True)
+            logs = {"mcap": out / f"{sc.name}.mcap", "rrd": out / f"{sc.name}.rrd"}
+            sinks += [McapSink(logs["mcap"], live=view.foxglove), RerunSink(logs["rrd"], live=view.rerun)]
+        elif view.rerun:
+            sinks.append(RerunSink(None, live=view.rerun))
+        done = run_scenario(sc, sinks, keep_samples=True, batch_size=view.batch_size(sc.sim.period))  # Result.samples
+    finally:
+        view.stop()
     res = done.result
     return Result(samples=res.loops, metrics=done.metrics, status=res.status, message=res.message, logs=logs,
                   scenario=scenario_to_dict(sc), body_pos=res.body_pos, body_quat=res.body_quat)

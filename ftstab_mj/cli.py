@@ -360,14 +360,16 @@ def cmd_run(args) -> int:
 
         for note in make_plant(sc.plant.model, sc.plant.params).notes:
             print(f"note: {note}", file=sys.stderr)
-    sinks = (McapSink(paths[0], force=args.force), RerunSink(paths[1], force=args.force),
-             ProgressSink(sc.name, sc.sim.duration))
+    live = _live_view(args)  # servers started (or refused in one line) before any log exists
+    logs = (McapSink(paths[0], force=args.force, live=live.foxglove),
+            RerunSink(paths[1], force=args.force, live=live.rerun, grpc_port=args.grpc_port))
+    sinks = (*logs, ProgressSink(sc.name, sc.sim.duration))
 
     def logs_say(status: str) -> str:
         """What the logs record, as far as each could be closed (never more)."""
-        closed = [str(p) for p, s in zip(paths, sinks) if s.closed_status == status]
-        cut = [str(p) for p, s in zip(paths, sinks) if s.closed_status != status and p.exists()]
-        absent = [str(p) for p, s in zip(paths, sinks) if s.closed_status != status and not p.exists()]
+        closed = [str(p) for p, s in zip(paths, logs) if s.closed_status == status]
+        cut = [str(p) for p, s in zip(paths, logs) if s.closed_status != status and p.exists()]
+        absent = [str(p) for p, s in zip(paths, logs) if s.closed_status != status and not p.exists()]
         said = [f"logs closed with status {status}: {', '.join(closed)}" if closed else "no log could be closed"]
         said += [f"{p} ends at its last complete batch, without a status" for p in cut]
         said += [f"{p} was not written" for p in absent]
@@ -376,14 +378,16 @@ def cmd_run(args) -> int:
     # one scope for the run and its report: a signal once the run is over waits until the report is
     # out, so the exit code is the one of the status the logs record
     with interrupts.run_scope():
-        try:
-            run = run_scenario(sc, sinks)
+        try:  # the pacer first: the logs and viewers get each batch when the clock has reached it
+            run = run_scenario(sc, (*live.sinks(), *sinks), batch_size=live.batch_size(sc.sim.period))
         except (CallbackError, LogWriteError) as exc:  # the controller raised, or a log could not be written
             print(f"error: run failed: {exc} ({logs_say('failed')})", file=sys.stderr)
             return 1
         except MemoryError:  # the run loop closed the logs as "failed" before this came out of it
             print(f"error: run failed: out of memory ({logs_say('failed')})", file=sys.stderr)
             return 1
+        finally:
+            live.stop()
         if args.json:
             print(json.dumps(run.metrics, indent=2))
         else:
@@ -393,10 +397,37 @@ def cmd_run(args) -> int:
         if status == "completed":
             return 0
         stop = (interrupts.last_signal() or interrupts.Interrupted()) if status == "interrupted" else None
-        says = ("the logs say so and hold the samples up to there" if all(s.closed_status == status for s in sinks[:2])
+        says = ("the logs say so and hold the samples up to there" if all(s.closed_status == status for s in logs)
                 else logs_say(status))
         print(f"error: run {stop.label if stop else status}: {run.result.message} ({says})", file=sys.stderr)
         return stop.exit_code if stop else 1
+
+
+def _live_view(args):
+    """The live viewing a run asks for (logs/live.LiveView); a server that cannot start: one line, exit 2."""
+    from ftstab_mj.logs.live import LiveView
+
+    try:
+        return LiveView(args.live, args.foxglove, args.realtime, grpc_port=args.grpc_port, web_port=args.web_port)
+    except OSError as exc:  # the Foxglove server's port in use, or an address not of this host
+        host, port = args.foxglove
+        raise UsageError(f"--foxglove {host}:{port}: expected an address to serve on, found {exc.strerror}") from None
+
+
+def _port(text: str) -> int:
+    try:
+        port = int(text)
+    except ValueError:
+        port = -1
+    if not 0 <= port <= 65535:
+        raise argparse.ArgumentTypeError(f"expected a TCP port 0..65535 (0: any free one), got {text!r}")
+    return port
+
+
+def _host_port(text: str) -> tuple[str, int]:
+    """[HOST:]PORT -> (host, port); HOST defaults to 127.0.0.1 (this machine only)."""
+    host, _, port = text.rpartition(":")
+    return (host or "127.0.0.1"), _port(port)
 
 
 def _workers(text: str) -> int:
@@ -677,6 +708,20 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--force", action="store_true",
                    help="replace DIR/<name>.mcap/.rrd even when they are not ftstab logs (another program's "
                         "file, a symbolic link: the link is replaced, never written through)")
+    view = r.add_argument_group("live view (the logs are written the same way meanwhile)")
+    view.add_argument("--live", nargs="?", const="auto", metavar="spawn|serve|URL",
+                      help="stream the run to a Rerun viewer as it happens: a native viewer when there is a "
+                           "display, else `serve` (a `rerun --serve-web` server: a web viewer on --web-port, "
+                           "gRPC on --grpc-port, kept after the run); or a rerun+http:// URL to stream to")
+    view.add_argument("--grpc-port", type=_port, default=9876, metavar="PORT",
+                      help="the Rerun viewer's or server's gRPC port (default 9876)")
+    view.add_argument("--web-port", type=_port, default=9090, metavar="PORT",
+                      help="--live serve: the web viewer's HTTP port (default 9090)")
+    view.add_argument("--foxglove", nargs="?", const=("127.0.0.1", 8765), type=_host_port, metavar="[HOST:]PORT",
+                      help="serve the run to Foxglove (WebSocket) as it happens, the MCAP log's channels "
+                           "and messages (default 127.0.0.1:8765; port 0: any free one, printed)")
+    view.add_argument("--realtime", action="store_true",
+                      help="pace the run to the wall clock (sim time follows wall time; prints the lag)")
     r.set_defaults(func=cmd_run)
 
     ls = sub.add_parser("list", help="the shipped scenarios, the control laws and the plants",

@@ -61,6 +61,24 @@ def start_cli(*args, cwd=None, **popen_kwargs):
                             text=True, preexec_fn=_sigint_default, **popen_kwargs)
 
 
+def wait_for_samples(log, size=200_000, timeout=120):
+    """Wait until the log at ``log`` holds ``size`` bytes (samples are being written: the run has started)."""
+    import time
+
+    deadline = time.monotonic() + timeout
+    while (not log.exists() or log.stat().st_size < size) and time.monotonic() < deadline:
+        time.sleep(0.05)
+
+
+def free_port() -> int:
+    """A TCP port free on 127.0.0.1 now (bound to 0, then released), for a server that needs a number."""
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
 def run_cli(*args, cwd=None, timeout=600):
     """Run ``python -m ftstab_mj ARGS`` as a user would (fresh process). Returns CompletedProcess."""
     env = dict(os.environ)

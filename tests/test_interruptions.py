@@ -10,15 +10,9 @@ import time
 import numpy as np
 import pytest
 
-from conftest import ROOT, run_cli, start_cli
+from conftest import ROOT, run_cli, start_cli, wait_for_samples
 from ftstab_mj.cli import main
 from ftstab_mj.logs.reader import read_log
-
-
-def wait_for_samples(log, size=200_000, timeout=120):
-    deadline = time.monotonic() + timeout
-    while (not log.exists() or log.stat().st_size < size) and time.monotonic() < deadline:
-        time.sleep(0.05)  # until samples are being written (the run has started)
 
 
 @pytest.mark.parametrize("sig, code", [(signal.SIGTERM, 143), (signal.SIGHUP, 129)])

@@ -112,14 +112,16 @@ class McapSink:
     pose_rate: Hz of simulated time at which body poses go to ``/tf`` (a display rate: the loop
     samples are all logged); compression: "lz4" | "zstd" | "none", applied per chunk (= per batch);
     lz4 by default: 0.5 us a sample against 0.8-1.4 for zstd level 1, files ~20 % larger.
-    Written with :class:`~ftstab_mj.logs.mcap_file.McapFile` (bulk message records).
+    Written with :class:`~ftstab_mj.logs.mcap_file.McapFile` (bulk message records). live: a
+    :class:`~ftstab_mj.logs.live.FoxgloveServer` that publishes everything the file gets, as it is written.
     """
 
-    def __init__(self, path, pose_rate: float = 60.0, compression: str = "lz4", force: bool = False):
+    def __init__(self, path, pose_rate: float = 60.0, compression: str = "lz4", force: bool = False, live=None):
         self.path = str(path)
         self.pose_rate = float(pose_rate)
         self.compression = compression
         self.force = force  # replace a file at path that is not one of our logs (logs/files.py)
+        self.live = live
         self.closed_status = None  # the status the log was closed with (None: not closed whole)
         self._writer = None
         self._file = None
@@ -142,6 +144,8 @@ class McapSink:
 
     def _start(self, info: RunInfo) -> None:
         w = self._writer = McapFile(self._file, compression={"none": ""}.get(self.compression, self.compression))
+        if self.live is not None:
+            w = self._writer = self.live.mirror(w)
         w.start(profile="", library=f"ftstab_mj {versions()['ftstab_mj']}")
         w.add_metadata("versions", versions())
         self._info = info

@@ -34,7 +34,7 @@ import math
 
 import numpy as np
 
-from ftstab_mj.errors import LogError, LogWriteError
+from ftstab_mj.errors import LogWriteError
 from ftstab_mj.logs.files import Pump, can_pump, create_log, discard, write_errors
 from ftstab_mj.logs.scene import PLANE_HALF_THICKNESS, model_shapes, quat_rotate
 from ftstab_mj.records import RunInfo, SampleBatch, format_table
@@ -378,29 +378,19 @@ def start_viewer(live: str, grpc_port: int, web_port: int) -> str:
     """Start the viewer a live run streams to and return its gRPC URL.
 
     live: "spawn" (the native viewer, a separate process that outlives the run), "serve" (a
-    separate ``rerun --serve-web`` process: a web viewer at http://localhost:<web_port> and its
-    gRPC proxy on grpc_port, for a machine without a display), or a rerun+http:// URL of a viewer
-    already running (nothing is started)."""
-    import shutil
-    import subprocess
-    import time
-
+    separate ``rerun --serve-web`` process, logs/live.serve_rerun: a web viewer at
+    http://localhost:<web_port> and its gRPC proxy on grpc_port, for a machine without a display),
+    or a rerun+http:// URL of a viewer or server already running (nothing is started)."""
     import rerun as rr
 
-    url = f"rerun+http://127.0.0.1:{grpc_port}/proxy"
     if live == "spawn":
         rr.spawn(port=grpc_port, connect=False)
-    elif live == "serve":
-        exe = shutil.which("rerun")
-        if exe is None:
-            raise LogError("--live serve: expected the `rerun` command of rerun-sdk on PATH, found none")
-        subprocess.Popen([exe, "--serve-web", "--port", str(grpc_port), "--web-viewer-port", str(web_port)],
-                         stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-                         start_new_session=True)
-        time.sleep(0.5)  # let it bind; a gRPC sink retries meanwhile anyway
-    else:
-        url = live
-    return url
+        return f"rerun+http://127.0.0.1:{grpc_port}/proxy"
+    if live == "serve":
+        from ftstab_mj.logs.live import serve_rerun
+
+        return serve_rerun(grpc_port, web_port).url
+    return live
 
 
 def _pretty(obj) -> str:

@@ -110,9 +110,11 @@ def _close(sinks, status, metrics, message, quiet: bool = False) -> None:
         raise first
 
 
-def run_scenario(sc: Scenario, sinks=(), keep_samples: bool = False) -> ScenarioRun:
+def run_scenario(sc: Scenario, sinks=(), keep_samples: bool = False, batch_size: int = 1000) -> ScenarioRun:
     """Run the scenario; every sink observes it and is closed with the metrics (streamed: memory
     does not grow with the run). keep_samples: also keep every sample in ``result`` (RunResult.loops).
+    batch_size: samples handed to the sinks at once (smaller for a run paced to the clock; the
+    samples do not depend on it).
 
     Raises ftstab_mj.errors.CallbackError when the controller raised (sinks closed as "failed").
     """
@@ -122,7 +124,7 @@ def run_scenario(sc: Scenario, sinks=(), keep_samples: bool = False) -> Scenario
     s = sc.sim
     sim = Simulation(make_plant(sc.plant.model, sc.plant.params), sc.loops, period=s.period,
                      physics_step=s.physics_step, integrator=s.integrator, divergence_limit=s.divergence_limit)
-    run = Run(sim, s.duration, scenario_dict=scenario_to_dict(sc), metric_settings=sc.metrics,
+    run = Run(sim, s.duration, batch_size, scenario_dict=scenario_to_dict(sc), metric_settings=sc.metrics,
               keep_samples=keep_samples)
     result, metrics = record(run, sinks, metrics=True)
     return ScenarioRun(sc, result, metrics)
