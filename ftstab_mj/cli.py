@@ -443,13 +443,11 @@ def _workers(text: str) -> int:
 
 
 def cmd_sweep(args) -> int:
-    from collections import Counter
     from pathlib import Path
 
     from ftstab_mj.scenario.shipped import find_sweep
     from ftstab_mj.sweep import expand, load_sweep, run_sweep
     from ftstab_mj.sweep.runner import prepare
-    from ftstab_mj.sweep.table import read_table
 
     sweep = load_sweep(find_sweep(args.sweep))
     rows = expand(sweep)
@@ -465,8 +463,8 @@ def cmd_sweep(args) -> int:
     print(f"  base {sweep.scenario}, {len(rows)} runs -> {out}")
     outcome = run_sweep(sweep.name, rows, task, out, identity, engine=engine, workers=args.workers,
                         scheduler=args.scheduler, resume=args.resume, fmt=args.format)
-    counts = Counter(read_table(outcome.table)["status"]) if outcome.done else Counter()
-    print(f"{outcome.done}/{outcome.total} runs in the table ({', '.join(f'{n} {s}' for s, n in sorted(counts.items()))}); "
+    counts = ", ".join(f"{n} {s}" for s, n in sorted(outcome.statuses.items()))
+    print(f"{outcome.done}/{outcome.total} runs in the table ({counts}); "
           f"{outcome.ran} ran now in {outcome.elapsed_s:.1f} s")
     print(f"table: {outcome.table}")
     if args.report and outcome.done:

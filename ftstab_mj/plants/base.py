@@ -160,9 +160,15 @@ class Plant:
         return slice(adr, adr + dim)
 
 
+_PARSED: dict[str, mujoco.MjSpec] = {}  # models/<filename> parsed once per process (package data: never changes)
+
+
 def load_spec(filename: str) -> mujoco.MjSpec:
-    """The MjSpec of models/<filename>."""
-    return mujoco.MjSpec.from_file(str(MODELS_DIR / filename))
+    """A fresh MjSpec of models/<filename> (the caller may edit it): a copy of the file parsed once per
+    process (a copy costs 5 us, parsing 140 us, and every scenario check and run builds a plant)."""
+    if filename not in _PARSED:
+        _PARSED[filename] = mujoco.MjSpec.from_file(str(MODELS_DIR / filename))
+    return _PARSED[filename].copy()
 
 
 # -- the plant registry ----------------------------------------------------------------------------

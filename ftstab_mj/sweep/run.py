@@ -17,6 +17,7 @@ import hashlib
 import json
 import sys
 import time
+from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -39,6 +40,7 @@ class SweepOutcome:
     elapsed_s: float
     lost: list[int] = field(default_factory=list)  # rows lost by the engine (not in the table)
     interrupted: bool = False
+    statuses: dict[str, int] = field(default_factory=dict)  # {status: rows of the table with it}
 
 
 def fingerprint(rows: list[Row], identity: dict) -> str:
@@ -122,7 +124,8 @@ def run_sweep(name: str, rows: list[Row], task, out_dir, identity: dict, *, engi
         done = read_journal(journal_path)
     write_table(list(done.values()), table_path)
     outcome.done = len(done)
-    outcome.failed = sum(1 for row in done.values() if row["status"] != COMPLETED)
+    outcome.statuses = dict(Counter(row["status"] for row in done.values()))
+    outcome.failed = outcome.done - outcome.statuses.get(COMPLETED, 0)
     outcome.elapsed_s = time.perf_counter() - t0
     if outcome.interrupted:
         _say(progress, f"interrupted: {outcome.done}/{len(rows)} runs in {table_path}; --resume runs the others")

@@ -7,11 +7,16 @@ replaces the table at its path: a grid over ``loops.cart.controller`` with whole
 switches laws cleanly (each table holds its own law's parameters only).
 
 Every row is validated by :func:`prepare` before anything runs: a bad combination is bad input
-(SweepError, exit 2), never a failed row. Metrics are those of ``ftstab run``.
+(SweepError, exit 2), never a failed row. Metrics are those of ``ftstab run``. A row is not
+validated twice where that can be avoided: the scenarios :func:`prepare` validated are kept in this
+process (:data:`_PREPARED`, at most KEEP_PREPARED rows) for the runs made here (serial engine) and in
+worker processes forked from it (engine.py); a spawned or remote worker validates its rows again.
 """
 
 from __future__ import annotations
 
+import uuid
+import weakref
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -32,14 +37,22 @@ def _short(text: str) -> str:
     return text if len(text) <= 60 else text[:57] + "..."
 
 
+# {task token: {row: (params, validated Scenario)}}: what prepare() validated, for the runs made in this
+# process or in a process forked from it after prepare(); emptied as rows run, dropped with the task
+_PREPARED: dict[str, dict[int, tuple]] = {}
+KEEP_PREPARED = 20_000  # rows whose validated scenario is kept (~2 KB each); the others are validated again to run
+
+
 @dataclass(frozen=True)
 class ScenarioTask:
     """Runs one row: ``base`` (raw TOML data of the base scenario, fixed overrides applied) + the row's
-    values. Picklable. ``logs``: directory for each run's ``<row>.mcap`` and ``<row>.rrd``, or None."""
+    values. Picklable. ``logs``: directory for each run's ``<row>.mcap`` and ``<row>.rrd``, or None.
+    ``token``: names this task's prepared scenarios in :data:`_PREPARED` ("" for none)."""
 
     base: dict
     source: str  # the sweep file, prefix of every error
     logs: str | None = None
+    token: str = ""
 
     def scenario(self, index: int, params):
         """The validated scenario of row ``index``; ScenarioError naming the sweep file and the row."""
@@ -48,7 +61,8 @@ class ScenarioTask:
     def __call__(self, index: int, params) -> dict:
         from ftstab_mj.scenario.run import run_scenario
 
-        sc = self.scenario(index, params)
+        kept = _PREPARED.get(self.token, {}).pop(index, None)
+        sc = kept[1] if kept is not None and kept[0] == params else self.scenario(index, params)
         sinks = ()
         if self.logs:
             from ftstab_mj.logs import McapSink, RerunSink
@@ -80,10 +94,15 @@ def prepare(sweep: Sweep, rows, overrides=(), logs_dir=None) -> tuple[ScenarioTa
     for text in overrides:
         notes[apply_override(raw, text, src)] = f"--set {text}"
     scenario_from_dict(raw, src, notes)
-    task = ScenarioTask(raw, sweep.source, None if logs_dir is None else str(logs_dir))
+    task = ScenarioTask(raw, sweep.source, None if logs_dir is None else str(logs_dir), uuid.uuid4().hex)
+    kept = {}
     for row in rows:
         try:
-            task.scenario(row.index, row.params)
+            sc = task.scenario(row.index, row.params)
         except ScenarioError as exc:
             raise SweepError(exc.source, exc.path, exc.expected, exc.found) from None
+        if len(kept) < KEEP_PREPARED:
+            kept[row.index] = (row.params, sc)
+    _PREPARED[task.token] = kept
+    weakref.finalize(task, _PREPARED.pop, task.token, None)  # the kept scenarios live as long as the task
     return task, {"base": raw}

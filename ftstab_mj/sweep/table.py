@@ -19,9 +19,10 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-import pyarrow as pa
-
 from ftstab_mj.keypath import flatten
+
+# pyarrow is imported where a table is written or read, not here: the worker processes of a sweep
+# import this package (the task's module) but never write a table, and pyarrow costs them 0.1 s each
 
 FORMATS = ("parquet", "csv")
 VARYING_COLUMNS = ("elapsed_s",)  # everything else is a function of the sweep file only
@@ -72,9 +73,11 @@ class Journal:
 
 
 # -- table -----------------------------------------------------------------------------------------
-def _column(values: list) -> pa.Array:
-    """One typed column: bool, int64, float64 or string; None is null. Mixed ints and floats are floats;
-    anything else mixed (e.g. a parameter that is a number in one row and a string in another) is text."""
+def _column(values: list):
+    """One typed column (a pyarrow.Array): bool, int64, float64 or string; None is null. Mixed ints and
+    floats are floats; anything else mixed (e.g. a parameter that is a number in one row and a string in another) is text."""
+    import pyarrow as pa
+
     kinds = {type(v) for v in values if v is not None}
     if kinds <= {bool}:
         return pa.array(values, type=pa.bool_())
@@ -86,8 +89,10 @@ def _column(values: list) -> pa.Array:
                     type=pa.string())
 
 
-def to_arrow(rows: list[dict]) -> pa.Table:
-    """The table of rows (sorted by ``row``), columns in order of first appearance."""
+def to_arrow(rows: list[dict]):
+    """The pyarrow.Table of rows (sorted by ``row``), columns in order of first appearance."""
+    import pyarrow as pa
+
     rows = sorted(rows, key=lambda r: r["row"])
     names: dict[str, None] = {}
     for r in rows:

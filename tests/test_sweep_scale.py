@@ -1,0 +1,73 @@
+"""What makes a sweep cheap: rows validated once, worker processes forked where that is safe.
+
+(The speed itself is measured in benchmarks/sweep_speedup.py, never here.)
+"""
+
+import subprocess
+import sys
+
+from conftest import ROOT
+from ftstab_mj.sweep import expand, load_sweep
+from ftstab_mj.sweep import runner
+from ftstab_mj.sweep.runner import ScenarioTask, prepare
+
+
+def cart_sweep(tmp_path, samples=3):
+    path = tmp_path / "cart.toml"
+    path.write_text(f'''name = "cart"
+description = "a few short cart runs"
+scenario = "{ROOT / "scenarios" / "cart_r2_robust.toml"}"
+seed = 5
+samples = {samples}
+[set]
+"sim.duration" = 0.2
+[draw]
+"loops.cart.z0[0]" = {{uniform = [-1.0, 1.0]}}
+''')
+    return load_sweep(path)
+
+
+def test_a_row_prepare_validated_runs_without_being_validated_again_and_gives_the_same_result(tmp_path, monkeypatch):
+    sweep = cart_sweep(tmp_path)
+    rows = expand(sweep)
+    task, _ = prepare(sweep, rows)
+    fresh = ScenarioTask(task.base, task.source)  # no prepared scenarios: validates each row itself
+    expected = [fresh(r.index, r.params) for r in rows]
+
+    def no_second_validation(*args):
+        raise AssertionError("a row prepare() validated was validated again")
+
+    monkeypatch.setattr(ScenarioTask, "scenario", no_second_validation)
+    assert [task(r.index, r.params) for r in rows] == expected
+    assert runner._PREPARED[task.token] == {}  # each kept scenario is used once, then dropped
+    token = task.token
+    del task
+    assert token not in runner._PREPARED  # and the store goes with its task
+
+
+def test_a_row_whose_parameters_differ_from_the_prepared_ones_is_validated_again(tmp_path):
+    sweep = cart_sweep(tmp_path, samples=2)
+    rows = expand(sweep)
+    task, _ = prepare(sweep, rows)
+    other = (("loops.cart.z0[0]", 0.25),)
+    assert task(0, other) == ScenarioTask(task.base, task.source)(0, other)
+
+
+FORK_CHECK = """
+import threading
+from ftstab_mj.callback import control_callback
+from ftstab_mj.sweep.engine import start_method
+print(start_method())
+with control_callback(lambda m, d: None, owner="a run"):
+    print(start_method())
+t = threading.Thread(target=threading.Event().wait, args=(5,), daemon=True)
+t.start()
+print(start_method())
+"""
+
+
+def test_workers_are_forked_only_from_a_single_threaded_process_with_no_simulation_running():
+    out = subprocess.run([sys.executable, "-c", FORK_CHECK], capture_output=True, text=True, cwd=ROOT, timeout=120)
+    assert out.returncode == 0, out.stderr
+    expected = ["fork", "spawn", "spawn"] if sys.platform.startswith("linux") else ["spawn"] * 3
+    assert out.stdout.split() == expected
