@@ -1,22 +1,52 @@
-"""``python -m ftstab_mj`` = the ``ftstab`` command."""
+"""The ``ftstab`` process: ``python -m ftstab_mj`` and the ``ftstab`` script (pyproject.toml points
+it at :func:`main`).
 
-import signal
-import sys
+No signal may end the command with a traceback or kill it without a word. So the first thing this
+module does, before importing any Python code, is to give SIGINT, SIGTERM and SIGHUP a handler that
+only notes them (through ``_signal``, the C module); :func:`main` hands them to ftstab_mj.interrupts
+(a noted signal stops the command there: exit 128 + signal, no log) and, once the exit code is
+decided, has them ignored to the end (interrupts.finish). Before this module runs (the
+interpreter's start-up, ``site``, the package's ``__init__``) Python's own handling applies.
+"""
 
-from ftstab_mj import interrupts
+import _signal
 
-# The process's own: a signal stops the command like Ctrl-C from the start (the imports included),
-# and once the command has returned its exit code a signal is only noted (the logs are closed and
-# say how the run ended; the exit code stays the one of that status).
-_signals = interrupts.handling(take_over=True)  # kept: a collected generator would put the handlers back
-_signals.__enter__()
-try:
-    from ftstab_mj.cli import main
+_noted: list[int] = []  # signals that came before ftstab_mj.interrupts took over
 
-    code = main()
-except KeyboardInterrupt as exc:
-    print(f"error: {interrupts.interruption(exc).label}", file=sys.stderr)
-    code = interrupts.interruption(exc).exit_code
-for s in interrupts.SIGNALS:  # ignored at the OS level: Python's finalization resets its own handlers
-    signal.signal(s, signal.SIG_IGN)
-sys.exit(code)
+
+def _note(signum, frame):
+    _noted.append(signum)
+
+
+for _name in ("SIGINT", "SIGTERM", "SIGHUP"):
+    _s = getattr(_signal, _name, None)
+    if _s is not None and _signal.getsignal(_s) != _signal.SIG_IGN:  # nohup's ignored SIGHUP stays ignored
+        _signal.signal(_s, _note)
+
+import sys  # noqa: E402 - after the handlers, on purpose
+
+
+def main() -> int:
+    """Run the ``ftstab`` command (sys.argv); its exit code."""
+    try:
+        from ftstab_mj import interrupts
+
+        interrupts.own_process(_noted)
+        from ftstab_mj.cli import main as command
+
+        code = command()
+    except KeyboardInterrupt as exc:  # before the command could catch it (its imports)
+        stop = interrupts.interruption(exc)
+        print(f"error: {stop.label}", file=sys.stderr)
+        code = stop.exit_code
+    except ImportError:  # a signal inside a C extension's import comes out as "initialization failed"
+        stop = interrupts.last_signal()
+        if stop is None:
+            raise
+        print(f"error: {stop.label}", file=sys.stderr)
+        code = stop.exit_code
+    return interrupts.finish(code)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -375,9 +375,9 @@ def cmd_run(args) -> int:
         said += [f"{p} was not written" for p in absent]
         return "; ".join(said)
 
-    # one scope for the run and its report: a signal once the run is over waits until the report is
-    # out, so the exit code is the one of the status the logs record
-    with interrupts.run_scope():
+    # one scope for the run and its report, the command's last run: a signal once the run is over
+    # waits until the command ends, so the exit code is the one of the status the logs record
+    with interrupts.run_scope(final=True):
         try:  # the pacer first: the logs and viewers get each batch when the clock has reached it
             run = run_scenario(sc, (*live.sinks(), *sinks), batch_size=live.batch_size(sc.sim.period))
         except (CallbackError, LogWriteError) as exc:  # the controller raised, or a log could not be written

@@ -11,11 +11,18 @@ when the outermost block ends, so a batch is in every log or in none, and a log 
 opened or half closed; outside the blocks (setup, computing a batch) it is raised at once, before
 any log exists or between two batches. Once a run is being stopped, further signals are held
 until it has closed its logs (a second Ctrl-C does not abandon them half written).
+
+The ``ftstab`` process (ftstab_mj/__main__.py) owns its signals from its entry's first line
+(:func:`own_process`) to its exit (:func:`finish`); nothing in between puts other handlers back.
+Its rule: the exit code is the one of the status the logs record. A signal that comes once the logs
+are being closed (or after ``ftstab run`` closed them) changes neither: it is ignored, with a note
+on stderr ("completed" stays exit 0, "interrupted" stays 128 + the first signal).
 """
 
 from __future__ import annotations
 
 import signal
+import sys
 import threading
 from contextlib import contextmanager
 
@@ -133,11 +140,14 @@ _scopes = 0  # nesting of run_scope() (main thread)
 
 
 @contextmanager
-def run_scope():
+def run_scope(final: bool = False):
     """Around one run: signals handled (see :func:`handling`; SIGINT for library callers), and,
     when the outermost scope ends, the "being stopped" state reset so that the next run starts
     afresh. A command that reports on its run wraps both in one scope, so that a signal coming
-    once the run is over waits until the report is out (the exit code then is the run's)."""
+    once the run is over waits until the report is out (the exit code then is the run's).
+    final: the command's last run (``ftstab run``): nothing is reset, signals stay held until the
+    command ends (:func:`finish` in the ``ftstab`` process, the end of :func:`handling` in process),
+    so that no signal after the logs are closed turns their status into another exit code."""
     global _pending, _stopping, _scopes
     main = threading.current_thread() is threading.main_thread()
     with handling((signal.SIGINT,)):
@@ -146,5 +156,38 @@ def run_scope():
             yield
         finally:
             _scopes -= main
-            if main and _scopes == 0:
+            if main and _scopes == 0 and not final:
                 _pending, _stopping = None, False
+
+
+def own_process(noted=()) -> None:
+    """The ``ftstab`` command owns its process: from here until :func:`finish`, SIGINT, SIGTERM and
+    SIGHUP raise Interrupted (held inside :func:`critical`), with no context to leave, so that
+    nothing (not a collected generator, not the interpreter's shutdown) puts other handlers back.
+    A signal ignored on purpose (nohup) stays ignored. noted: the signals that came before (the
+    entry's first handler only notes them); the first is raised now."""
+    global _stopping, _last
+    for s in SIGNALS:
+        if signal.getsignal(s) is not signal.SIG_IGN:
+            signal.signal(s, _handler)
+    if noted:
+        _stopping, _last = True, int(noted[0])
+        raise Interrupted(noted[0])
+
+
+def finish(code: int) -> int:
+    """The ``ftstab`` process has its exit code ``code``: from here a signal is ignored by the OS
+    (Python's shutdown resets its own handlers to the default, which would kill the process with
+    no word), and one held since the logs were being closed is noted on stderr. Returns code."""
+    global _stopping
+    _stopping = True  # a signal from here to the next line is held, not raised
+    for s in SIGNALS:
+        if signal.getsignal(s) is _handler:
+            signal.signal(s, signal.SIG_IGN)
+    if _pending is not None:
+        try:
+            print(f"note: {signal.Signals(_pending).name} came while the command was finishing: ignored "
+                  f"(exit {code} stands)", file=sys.stderr)
+        except (OSError, ValueError):  # the terminal is gone (SIGHUP) or stderr closed: nothing to tell
+            pass
+    return code
