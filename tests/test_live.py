@@ -180,17 +180,21 @@ def test_live_serve_keeps_the_run_for_a_viewer_that_connects_afterwards(tmp_path
     line = next(x for x in done.stderr.splitlines() if x.startswith("rerun: streaming to "))
     pid = int(line.split("started as pid ")[1].split(";")[0])
     url = f"rerun+http://127.0.0.1:{grpc}/proxy"
-    assert url in line and f"http://127.0.0.1:{web}" in line
+    assert url in line and f"http://127.0.0.1:{web}?url=rerun%2Bhttp%3A%2F%2Flocalhost%3A{grpc}%2Fproxy" in line
     got = tmp_path / "viewer.rrd"
-    client = subprocess.Popen([str(Path(sys.executable).parent / "rerun"), url, "--save", str(got),
-                               "--port", str(free_port())], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
+        from urllib.request import urlopen
+
+        with urlopen(f"http://127.0.0.1:{web}/", timeout=30) as page:  # the web viewer is served
+            assert page.status == 200
+        client = subprocess.Popen([str(Path(sys.executable).parent / "rerun"), url, "--save", str(got),
+                                   "--port", str(free_port())], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         _wait_rows(got, "/loop/cart/V1/log10_V1", 1000)
     finally:
         import os
 
         os.kill(pid, signal.SIGTERM)  # the server this test started (through ftstab run)
-        client.communicate(timeout=60)  # its stream ends with the server
+    client.communicate(timeout=60)  # its stream ends with the server
     assert rrd_rows(got, "/loop/cart/V1/log10_V1") == rrd_rows(tmp_path / "o" / f"{SCENARIO}.rrd", "/loop/cart/V1/log10_V1")
 
 

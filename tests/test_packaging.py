@@ -28,6 +28,8 @@ def test_wheel_carries_models_and_scenarios_and_runs_without_the_source_tree(tmp
     for model in sorted(p.name for p in (ROOT / "models").glob("*.xml")):
         assert f"ftstab_mj/_data/models/{model}" in names
     assert "ftstab_mj/_data/scenarios/cart_r2_robust.toml" in names
+    for layout in sorted(p.name for p in (ROOT / "ftstab_mj" / "logs" / "layouts").glob("*.json")):
+        assert f"ftstab_mj/logs/layouts/{layout}" in names  # the shipped Foxglove layouts
     site = tmp_path / "site"
     zipfile.ZipFile(wheel).extractall(site)
     env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}

@@ -254,8 +254,10 @@ def serve_rerun(grpc_port: int, web_port: int, timeout: float = 20.0) -> RerunSe
 
     from ftstab_mj.errors import LogError
 
-    url = f"rerun+http://127.0.0.1:{grpc_port}/proxy"
-    web_url = f"http://127.0.0.1:{web_port}"
+    from urllib.parse import quote
+
+    url = f"rerun+http://127.0.0.1:{grpc_port}/proxy"  # the web viewer connects to it from the browser's side:
+    web_url = f"http://127.0.0.1:{web_port}?url={quote(f'rerun+http://localhost:{grpc_port}/proxy', safe='')}"
     if _listening(grpc_port):
         return RerunServer(url, web_url, None)
     exe = _rerun_binary() or shutil.which("rerun")
