@@ -229,6 +229,40 @@ def test_interval_arithmetic_encloses():
             assert mp.mpf(iv.lo[i]) <= exact <= mp.mpf(iv.hi[i])
 
 
+def test_outward_rounding_moves_past_the_next_float():
+    """_up/_dn (a multiply and two adds instead of np.nextafter) reach at least the neighbouring
+    float for every kind of double: binade edges, subnormals, zero, the largest floats; NaN stays NaN."""
+    from ftstab_mj.control.interval import _dn, _up
+
+    rng = np.random.default_rng(11)
+    edges = 2.0 ** np.arange(-1074, 1024, dtype=float)
+    x = np.concatenate([edges, np.nextafter(edges, 0), np.nextafter(edges, np.inf), [0.0, np.finfo(float).max],
+                        rng.standard_normal(10_000) * 10.0 ** rng.uniform(-300, 300, 10_000)])
+    x = np.concatenate([x, -x])
+    x = x[np.isfinite(x)]
+    with np.errstate(over="ignore"):  # the largest float's neighbour is inf
+        for n in (1, 2):
+            assert np.all(_up(x, n) >= np.nextafter(x, np.inf)) and np.all(_dn(x, n) <= np.nextafter(x, -np.inf))
+    assert np.isnan(_up(np.nan)) and np.isnan(_dn(np.nan))
+    assert _up(-np.inf) == -np.finfo(float).max and _dn(np.inf) == np.finfo(float).max
+
+
+def test_power_enclosure_over_an_exponent_interval():
+    """x ** p for p in a narrow exponent interval from one power (widened by 746 (p_hi - p_lo)
+    relative, |ln x| <= 745): encloses mpmath's value at both ends of the interval, for x from the
+    subnormals to 1e300."""
+    mp.mp.dps = 50
+    rng = np.random.default_rng(12)
+    x = np.concatenate([10.0 ** rng.uniform(-320, 300, 400), [5e-324, 1.0, 1e300]])
+    for p in (0.047619047619047616, 1.05, -0.3, 2.5):
+        e = Exp(p, float(np.nextafter(np.nextafter(p, np.inf), np.inf)))
+        iv = Iv(x).pabs(e)
+        for xi, lo, hi in zip(x, iv.lo, iv.hi):
+            for pe in (e.lo, e.hi):
+                exact = mp.mpf(xi) ** mp.mpf(pe)
+                assert mp.mpf(lo) <= exact <= mp.mpf(hi), (xi, pe)
+
+
 def test_simplified_form_sound_regional_check():
     """The simplified form's V1 is not homogeneous: the check is on a shell only. At k = -0.2 the
     derivative of |z_1|^e (e < 1) is unbounded near z_1 = 0 and dV1/dt > 0 there: the check returns a
