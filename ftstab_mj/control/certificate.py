@@ -40,6 +40,7 @@ DEFAULT_RTOL = 2e-3  # relative gap c_upper - c_lower at which the B&B stops
 MAX_SAMPLES = 10_000_000
 DEFAULT_MAX_BOXES = 20_000_000  # work cap of one B&B (deterministic, unlike a time budget): ~2-3 min
 MAX_LIVE_BOXES = 2_000_000  # memory cap of the B&B (about 0.2 GB at r = 6)
+SPLIT_BATCH = 8192  # boxes split per round (their children are evaluated together: NumPy's overhead is per round)
 CERTIFIED, NOT_CERTIFIED, UNDECIDED = "certified", "not certified", "undecided"
 
 
@@ -273,7 +274,16 @@ def _climb(obj: _Ratio, z, rng, rounds=80, step0=0.3):
 
 def _maximise(obj: _Ratio, seeds, rtol, deadline, stop_if_positive, progress=None, rng=None,
               max_boxes=DEFAULT_MAX_BOXES) -> _Max:
-    """Branch and bound for max R over the r faces (see the module docstring)."""
+    """Branch and bound for max R over the r faces (see the module docstring).
+
+    Every box has an upper bound ub. A box with ub <= best + rtol |best| (best: the guaranteed
+    value at the witness) never needs splitting: it is retired and only the largest such ub is
+    kept (``done``). When stop_if_positive (R is dV1/dt / V1^alpha: "is c > 0?"), the boxes with
+    ub < 0 are parked first and only those with ub >= 0 are split, until none is left (c_lower > 0
+    proven) or the witness reaches R >= 0 (stop: not certified); then the parked boxes are refined
+    for the gap. A budget that runs out so decides the status before it tightens the gap. Each round splits
+    the open boxes with the largest ub (at most SPLIT_BATCH of them) along one coordinate.
+    """
     r, d = obj.r, obj.r - 1
     lb_seed = obj.points(seeds).lo
     lb_seed = np.where(np.isnan(lb_seed), -np.inf, lb_seed)
@@ -282,10 +292,6 @@ def _maximise(obj: _Ratio, seeds, rtol, deadline, stop_if_positive, progress=Non
     if d == 0:  # r = 1: the sphere is the point z_1 = 1
         R = obj.points(np.ones((1, 1)))
         return _Max(float(R.hi[0]), float(R.lo[0]), np.ones(1), 1, True)
-    lo = np.full((r, d), -1.0)
-    hi = np.full((r, d), 1.0)
-    face = np.arange(r)
-    ub, split = np.empty(r), np.empty(r, dtype=int)
     nbox = 0
 
     def evaluate(lo, hi, face):
@@ -301,47 +307,72 @@ def _maximise(obj: _Ratio, seeds, rtol, deadline, stop_if_positive, progress=Non
         nbox += len(lo)
         return ub, split
 
+    lo, hi, face = np.full((r, d), -1.0), np.full((r, d), 1.0), np.arange(r)
     ub, split = evaluate(lo, hi, face)
+    done = -np.inf  # the largest ub of the retired boxes
+    proving = stop_if_positive  # phase 1: only the boxes with ub >= 0 are split
+    parked, parked_top = [], -np.inf  # boxes (lo, hi, face, ub, split) with ub < 0, set aside in phase 1
     converged = False
     iteration = 0
     rng = rng if rng is not None else np.random.default_rng(0)
     while True:
-        keep = ub >= best
-        lo, hi, face, ub, split = lo[keep], hi[keep], face[keep], ub[keep], split[keep]
-        top = float(ub.max()) if len(ub) else best
-        if top - best <= rtol * abs(best) or (stop_if_positive and best >= 0.0):
-            converged = top - best <= rtol * abs(best)
+        thr = best + rtol * abs(best)
+        retire = ub <= thr
+        if retire.any():
+            done = max(done, float(ub[retire].max()))
+            lo, hi, face, ub, split = lo[~retire], hi[~retire], face[~retire], ub[~retire], split[~retire]
+        if stop_if_positive and best >= 0.0:  # a state with dV1/dt >= 0: not certified
+            break
+        if proving:
+            park = ub < 0.0
+            if park.any():
+                parked.append((lo[park], hi[park], face[park], ub[park], split[park]))
+                parked_top = max(parked_top, float(ub[park].max()))
+                lo, hi, face, ub, split = lo[~park], hi[~park], face[~park], ub[~park], split[~park]
+            if not len(ub):  # c > 0 proven: now the gap
+                proving = False
+                if parked:
+                    lo, hi, face, ub, split = (np.concatenate(a) for a in zip(*parked))
+                parked, parked_top = [], -np.inf
+                continue
+        if not len(ub):
+            converged = True
             break
         if time.process_time() > deadline or len(ub) > MAX_LIVE_BOXES or nbox > max_boxes:
             break
         if progress is not None:
-            progress(best, top, nbox)
+            progress(best, max(float(ub.max()), done, parked_top), nbox)
         iteration += 1
-        if iteration % 25 == 0:  # climb from the centres of the best boxes: a better witness prunes more
-            cz = np.insert(0.5 * (lo + hi), 0, 0.0, axis=1)[np.argsort(ub)[-16:]]
-            cz = np.array([np.insert(np.delete(c, 0), f, 1.0) for c, f in zip(cz, face[np.argsort(ub)[-16:]])])
+        if iteration % 4 == 0:  # climb from the centres of the best boxes: a better witness prunes more
+            order = np.argsort(ub)[-16:]
+            cz = np.array([np.insert(0.5 * (lo[j] + hi[j]), face[j], 1.0) for j in order])
             cz = _climb(obj, cz, rng, rounds=30, step0=0.05)
             lbs = obj.points(cz).lo
             j = int(np.nanargmax(lbs)) if np.isfinite(lbs).any() else -1
             if j >= 0 and lbs[j] > best:
                 best, wit = float(lbs[j]), cz[j].copy()
-        m = min(len(ub), max(256, min(4096, len(ub) // 4)))
-        pick = np.argpartition(ub, len(ub) - m)[len(ub) - m:]
-        rest = np.ones(len(ub), dtype=bool)
-        rest[pick] = False
-        plo, phi, pf, ps = lo[pick], hi[pick], face[pick], split[pick]
+        m = min(len(ub), max(256, min(SPLIT_BATCH, len(ub) // 2)))  # half: a few boxes far above the rest go deep fast
+        if m < len(ub):
+            pick = np.argpartition(ub, len(ub) - m)[len(ub) - m:]
+            rest = np.ones(len(ub), dtype=bool)
+            rest[pick] = False
+            keep = (lo[rest], hi[rest], face[rest], ub[rest], split[rest])
+            lo, hi, face, split = lo[pick], hi[pick], face[pick], split[pick]
+        else:
+            keep = None
         rows = np.arange(m)
-        cut = 0.5 * (plo[rows, ps] + phi[rows, ps])
-        lo1, hi1 = plo.copy(), phi.copy()
-        hi1[rows, ps] = cut
-        lo2, hi2 = plo.copy(), phi.copy()
-        lo2[rows, ps] = cut
-        clo, chi, cf = np.concatenate([lo1, lo2]), np.concatenate([hi1, hi2]), np.concatenate([pf, pf])
-        cub, csplit = evaluate(clo, chi, cf)
-        lo, hi, face = np.concatenate([lo[rest], clo]), np.concatenate([hi[rest], chi]), np.concatenate([face[rest], cf])
-        ub, split = np.concatenate([ub[rest], cub]), np.concatenate([split[rest], csplit])
-    top = float(ub.max()) if len(ub) else best
+        cut = 0.5 * (lo[rows, split] + hi[rows, split])
+        hi1, lo2 = hi.copy(), lo.copy()
+        hi1[rows, split] = cut
+        lo2[rows, split] = cut
+        lo, hi, face = np.concatenate([lo, lo2]), np.concatenate([hi1, hi]), np.concatenate([face, face])
+        ub, split = evaluate(lo, hi, face)
+        if keep is not None:
+            lo, hi, face = np.concatenate([keep[0], lo]), np.concatenate([keep[1], hi]), np.concatenate([keep[2], face])
+            ub, split = np.concatenate([keep[3], ub]), np.concatenate([keep[4], split])
+    top = max(float(ub.max()) if len(ub) else -np.inf, done, parked_top)
     return _Max(max(top, best), best, wit, nbox, converged)
+
 
 
 def certify(hong: HongController, samples: int = DEFAULT_SAMPLES, seed: int = DEFAULT_SEED,

@@ -171,7 +171,10 @@ class Terms:
             h = sv.sig(rho) * Iv(2.0).pabs(Exp.of(1.0 - rho.iv()))
             lo, hi = np.maximum(lo, np.minimum(h.lo, 0.0)), np.minimum(hi, np.maximum(h.hi, 0.0))
         val = Iv(lo, hi)
-        near = (hull.mig() < hull.hi - hull.lo) if rho.lo < 1.0 else np.zeros(np.shape(lo), dtype=bool)
+        # singular only where y or S reaches 0 (the derivatives rho |.|^(rho - 1) of the plain
+        # difference): boxes whose y and S have opposite signs but stay away from 0 keep its gradient
+        yv, Sv = _val(y), _val(S)
+        near = ((yv.mig() < yv.hi - yv.lo) | (Sv.mig() < Sv.hi - Sv.lo)) if rho.lo < 1.0 else np.zeros(np.shape(lo), dtype=bool)
         return f(slot, plain, (val, near), "value")
 
     def _W(self, z, a, S, s, diff, b_index, fl):
