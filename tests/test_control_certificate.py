@@ -20,46 +20,69 @@ REFERENCE = [
 ]
 
 
-def exact_k0(gains):
-    """c and c' at k = 0 (LITERATURE.md): V1 = |e|^2/2 with e_1 = z_1, e_{i+1} = z_{i+1} - v_i,
-    v_i = -l_i e_i; e = T z, z' = A z, e' = B e with B = T A T^-1; c = 2 lambda_min(-(B + B^T)/2),
-    c' = sqrt(2) (|dV1/dz_r| = |e_r| <= |e| = sqrt(2 V1))."""
+def exact_k0(gains, mpf=False):
+    """c at k = 0 (the linear backstepping law): V1 = |e|^2/2 with e_1 = z_1, e_{i+1} = z_{i+1} - v_i,
+    v_i = -l_i e_i; e = T z, z' = A z, e' = B e with B = T A T^-1; c = 2 lambda_min(-(B + B^T)/2).
+    Computed with mpmath at 50 digits (B has entries up to ~l_r: a float eigenvalue would be off
+    by ~1e-16 l_r, more than the certificate's own rounding); a float unless mpf."""
     r = len(gains)
-    T = np.zeros((r, r))
-    T[0, 0] = 1.0
-    for i in range(1, r):
-        T[i] = gains[i - 1] * T[i - 1]
-        T[i, i] += 1.0
-    A = np.zeros((r, r))
-    A[:-1, 1:] = np.eye(r - 1)
-    A[-1] = -gains[-1] * T[-1]
-    B = T @ A @ np.linalg.inv(T)
-    return 2.0 * np.linalg.eigvalsh(-(B + B.T) / 2.0).min()
+    with mp.workdps(50):
+        g = [mp.mpf(float(x)) for x in gains]
+        T = mp.zeros(r, r)
+        T[0, 0] = 1
+        for i in range(1, r):
+            for j in range(r):
+                T[i, j] = g[i - 1] * T[i - 1, j]
+            T[i, i] += 1
+        A = mp.zeros(r, r)
+        for i in range(r - 1):
+            A[i, i + 1] = 1
+        for j in range(r):
+            A[r - 1, j] = -g[-1] * T[r - 1, j]
+        B = T * A * mp.inverse(T)
+        c = 2 * min(mp.eigsy(-(B + B.T) / 2, eigvals_only=True))
+        return +c if mpf else float(c)
 
 
-# gain sets with c > 0 at k = 0, the longer ones spanning 3 to 5 decades (found by maximising the
-# exact c over log-gains; any such set works)
+# gain sets with c > 0 at k = 0, the longer ones spanning 3 to 6 decades, down to 0.1 and up to 1e5
+# (found by maximising the exact c over log-gains, some gains fixed; any such set works)
 K0_SETS = [
     (2.0,),
     (1.0, 2.0),
     (46.407, 1e5),
+    (0.1, 1e5),
     (3.233, 46.004, 1e5),
+    (0.1, 45.94, 1e5),
     (1.08, 1.72, 4.46, 100.0),
     (1.253, 3.042, 50.211, 1e5),
     (0.65, 1.2, 1.62, 12.63, 1000.0),
+    (0.62, 1.15, 1.54, 3.88, 39.13, 1e5),
 ]
 
 
-@pytest.mark.parametrize("gains", K0_SETS, ids=lambda g: f"r{len(g)}")
+@pytest.mark.parametrize("gains", [g for g in K0_SETS if len(g) <= 5], ids=lambda g: f"r{len(g)}-{g[0]:g}-{g[-1]:g}")
 def test_k0_against_the_exact_value(gains):
-    # rtol: the B&B stops when the gap is below it (the default 0.2 % costs more at r >= 5)
+    # rtol: the B&B stops when the gap is below it (the default 0.2 % costs more at r = 5: 7 s)
     cert = certify(HongController(len(gains), 0.0, gains), rtol=2e-3 if len(gains) < 5 else 8e-3)
-    c = exact_k0(np.array(gains))
+    c = exact_k0(gains, mpf=True)
     assert cert.status == "certified"
     assert cert.c_lower <= c <= cert.c_upper
     assert cert.gap < 0.01
     assert cert.c_prime_lower <= np.sqrt(2.0) <= cert.c_prime_upper
     assert (cert.c_prime_upper - np.sqrt(2.0)) / np.sqrt(2.0) < 0.01
+
+
+def test_k0_r6_bracket_within_a_work_cap():
+    """r = 6 (six decades of gains): the exact c lies in the bracket the B&B holds after a fixed
+    amount of work (2e5 boxes, ~3 s; deterministic). The gap does not close below 1 % within the
+    suite's means (it is 0.09 .. 0.11 after 1.6e6 boxes: benchmarks/certificate_table.py), so only
+    the bracket and the witness are tested here: the witness bound c_upper is within 1 % of it."""
+    gains = K0_SETS[-1]
+    cert = certify(HongController(6, 0.0, gains), max_boxes=200_000, samples=5000)
+    c = exact_k0(gains, mpf=True)
+    assert cert.status in ("certified", "undecided")
+    assert cert.c_lower <= c <= cert.c_upper
+    assert (cert.c_upper - c) / c < 0.01
 
 
 def _max_ratio_search(hong, alpha, rng, starts=256, steps=60):
@@ -92,39 +115,88 @@ def _max_ratio_search(hong, alpha, rng, starts=256, steps=60):
     return float(np.nanmax(fz))
 
 
-def test_soundness_against_adversarial_search():
-    """Random gain sets for r = 2..6 (the k = 0 sets above, each gain times a log-uniform factor in
-    [0.5, 2]) and random k in (-0.4/r, 0]: wherever the certificate claims dV1/dt <= -c_lower V1^alpha
+@pytest.mark.parametrize("r", [2, 3, 4])
+def test_soundness_against_adversarial_search(r):
+    """Random gain sets for each r (the k = 0 sets above, each gain times a log-uniform factor in
+    [0.7, 1.4]) and random k in (-0.1/r, 0]: wherever the certificate claims dV1/dt <= -c_lower V1^alpha
     (any finite c_lower: certified or undecided), the adversarial search never finds a state that
-    breaks it. The float evaluation of dV1/dt has rounding error: the claim is tested with 1e-9
-    relative slack."""
-    rng = np.random.default_rng(2026)
-    claims = 0
+    breaks it; a "not certified" witness is a real state with dV1/dt >= 0. The float evaluation of
+    dV1/dt has rounding error: the claim is tested with 1e-9 relative slack."""
+    rng = np.random.default_rng(2026 + r)
+    claims, tried = 0, 0
     worst = -np.inf
-    bases = [g for g in K0_SETS if len(g) >= 2]
-    for trial in range(24):
-        base = bases[trial % len(bases)]
-        r = len(base)
-        k = -rng.uniform(0.0, 0.4) / r
-        gains = tuple(float(g) for g in np.array(base) * 2.0 ** rng.uniform(-1, 1, r))
+    bases = [g for g in K0_SETS if len(g) == r]
+    while claims < 2 and tried < 12:
+        base = bases[tried % len(bases)]
+        tried += 1
+        k = -rng.uniform(0.0, 0.1) / r
+        gains = tuple(float(g) for g in np.array(base) * 2.0 ** rng.uniform(-0.5, 0.5, r))
         try:
             hong = HongController(r, k, gains)
         except ParameterError:  # not Hurwitz: not a controller
             continue
-        cert = certify(hong, max_boxes=30_000, samples=2000)  # a work cap: deterministic
-        if not np.isfinite(cert.c_lower):
-            continue
-        claims += 1
-        found = _max_ratio_search(hong, cert.alpha, rng)
-        margin = found + cert.c_lower  # the claim: found <= -c_lower
-        worst = max(worst, margin / max(abs(cert.c_lower), 1e-12))
-        assert found <= -cert.c_lower + 1e-9 * max(abs(cert.c_lower), abs(found)), (r, k, gains, cert.status)
+        cert = certify(hong, max_boxes=20_000, samples=2000)  # a work cap: deterministic
         if cert.status == "not certified":  # the witness is a real state with dV1/dt >= 0
             z = np.array(cert.witness)
             assert hong.closed_loop_dV1dt(z) >= -1e-9 * abs(hong.V1(z))
-    print(f"soundness: {claims} claims tested, largest (found + c_lower)/|c_lower| = {worst:.3g}")
-    assert claims >= 12
+        if not np.isfinite(cert.c_lower):
+            continue
+        claims += 1
+        found = _max_ratio_search(hong, cert.alpha, rng, starts=128)
+        margin = found + cert.c_lower  # the claim: found <= -c_lower
+        worst = max(worst, margin / max(abs(cert.c_lower), 1e-12))
+        assert found <= -cert.c_lower + 1e-9 * max(abs(cert.c_lower), abs(found)), (r, k, gains, cert.status)
+    print(f"soundness r = {r}: {claims} claims tested, largest (found + c_lower)/|c_lower| = {worst:.3g}")
+    assert claims >= 2
     assert worst <= 1e-9
+
+
+@pytest.mark.parametrize("r", [2, 3, 4, 5, 6])
+def test_box_bounds_hold_against_search(r):
+    """The B&B's claims box by box, for r = 2..6 (at r >= 5 a global c_lower within a cheap budget
+    is too loose to test anything): on random boxes of the faces, many near the zeros of the
+    recursion variables where the small exponents act, with random k in (-0.4/r, 0] and random
+    gains, the upper bound of R = dV1/dt / V1^alpha over each box is >= R at 64 points of the box
+    (corners, centre, random; R from the controller's own Lie derivative), and the lower bound at
+    the centre is <= R there. 1e-9 relative slack for the float evaluation of R."""
+    from ftstab_mj.control.certificate import _Ratio
+
+    rng = np.random.default_rng(77 + r)
+    base = [g for g in K0_SETS if len(g) == r][-1]
+    worst = -np.inf
+    for trial in range(6):
+        k = -rng.uniform(0.0, 0.4) / r
+        gains = tuple(float(g) for g in np.array(base) * 2.0 ** rng.uniform(-1, 1, r))
+        hong = HongController(r, k, gains, check_hurwitz=False)
+        terms = Terms(r, k, gains)
+        obj = _Ratio(terms, "c")
+        n = 40
+        face = int(rng.integers(r))
+        mid = rng.uniform(-1, 1, (n, r - 1))
+        mid[: n // 2] = np.sign(mid[: n // 2]) * 10.0 ** rng.uniform(-4, 0, (n // 2, r - 1))
+        half = 10.0 ** rng.uniform(-4, -0.5, (n, r - 1))
+        lo, hi = np.clip(mid - half, -1, 1), np.clip(mid + half, -1, 1)
+        ub, _, lb, zc = obj.boxes(face, lo, hi)
+        t = rng.uniform(0, 1, (n, 62, r - 1))
+        t[:, 0], t[:, 1] = 0.0, 1.0
+        x = lo[:, None] + t * (hi - lo)[:, None]
+        x = np.concatenate([x, 0.5 * (lo + hi)[:, None]], axis=1)  # (n, 63, r - 1), the centre last
+        x = np.concatenate([x, np.where(rng.uniform(size=(n, 1, r - 1)) < 0.5, lo[:, None], hi[:, None])], axis=1)
+        s_pts = np.insert(x.reshape(-1, r - 1), face, 1.0, axis=1)
+        z, _, _ = terms.z_of([s_pts[:, i] for i in range(r)])
+        z = np.stack(z, axis=-1)
+        with np.errstate(all="ignore"):
+            R = (hong.closed_loop_dV1dt(z) / hong.V1(z) ** ((2.0 + 2.0 * k) / (2.0 + k))).reshape(n, 64)
+        ok = np.isfinite(R)
+        Rmax = np.where(ok, R, -np.inf).max(axis=1)
+        slack = 1e-9 * np.maximum(np.abs(Rmax), 1.0)
+        assert np.all(Rmax <= ub + slack), (r, k, gains)
+        Rc = R[:, 62]
+        fin = np.isfinite(Rc) & np.isfinite(lb)
+        assert np.all(lb[fin] <= Rc[fin] + 1e-9 * np.maximum(np.abs(Rc[fin]), 1.0))
+        rel = (Rmax - ub) / np.maximum(np.abs(ub), 1e-12)
+        worst = max(worst, float(np.max(np.where(np.isfinite(rel), rel, -np.inf))))
+    print(f"box bounds r = {r}: largest (R found - ub)/|ub| = {worst:.3g}")
 
 
 @pytest.mark.parametrize("r, k, gains, c_ref, alpha_ref", REFERENCE)

@@ -254,7 +254,31 @@ def _seed_points(obj: _Ratio, samples: int, rng) -> np.ndarray:
     z = np.concatenate(pts)
     f = obj.floats(z)
     top = np.argsort(f)[-min(32, len(f)):]
-    return _climb(obj, z[top], rng)
+    z = _climb(obj, z[top], rng)
+    return np.concatenate([z, _polish(obj, z[np.argsort(obj.floats(z))[-4:]])])
+
+
+def _polish(obj: _Ratio, z, iters=400):
+    """Nelder-Mead ascent of the float R from each row of z (n, r), its largest coordinate held:
+    the simplex is affine invariant, so it climbs the narrow ridges of gains spanning many decades
+    where a random search stalls. Any state is a valid witness (it need not stay on the cube)."""
+    from ftstab_mj.control.design import nelder_mead
+
+    if obj.r == 1:
+        return z
+    out = []
+    for row in z:
+        face = int(np.argmax(np.abs(row)))
+        fix = row[face]
+
+        def cost(x):
+            v = obj.floats(np.insert(x, face, fix)[None, :])[0]
+            return -v if np.isfinite(v) else np.inf
+
+        x, _ = nelder_mead(cost, np.delete(row, face), step=0.05 * (np.abs(np.delete(row, face)).max() + 1e-3),
+                           iters=iters, tol=1e-12)
+        out.append(np.insert(x, face, fix))
+    return np.array(out)
 
 
 def _climb(obj: _Ratio, z, rng, rounds=80, step0=0.3):
