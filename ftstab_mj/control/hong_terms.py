@@ -185,10 +185,14 @@ class Terms:
         if fl:
             return (np.abs(z) ** self.beta_p1[b_index].mid - a * S) * self.inv_beta_p1[b_index].mid - S * (z - a)
         b = self.beta[b_index]
-        hull = _val(z).hull(_val(a))
-        mean = _val(diff).sq() * (b.iv() * hull.pabs(self.beta_m1[b_index])) * 0.5
-        corners = _W_corners(_val(z), _val(a), b, self.beta_p1[b_index], self.inv_beta_p1[b_index])
-        val = Iv(np.maximum(np.maximum(mean.lo, corners.lo), 0.0), np.minimum(mean.hi, corners.hi))
+        if b.is_exactly(1.0):  # k = 0: W = (z - a)^2 / 2 exactly
+            w = _val(diff).sq() * 0.5
+            val = Iv(np.maximum(w.lo, 0.0), w.hi)
+        else:
+            hull = _val(z).hull(_val(a))
+            mean = _val(diff).sq() * (b.iv() * hull.pabs(self.beta_m1[b_index])) * 0.5
+            corners = _W_corners(_val(z), _val(a), b, self.beta_p1[b_index], self.inv_beta_p1[b_index])
+            val = Iv(np.maximum(np.maximum(mean.lo, corners.lo), 0.0), np.minimum(mean.hi, corners.hi))
         if not isinstance(z, Dual) and not isinstance(S, Dual):
             return val
         d = len((z if isinstance(z, Dual) else S).g)

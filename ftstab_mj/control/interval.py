@@ -147,8 +147,16 @@ class Iv:
         if isinstance(o, Dual):
             return o * self
         o = Iv.lift(o)
+        a = self
+        if a.lo is a.hi:  # a point times an interval: two products
+            a, o = o, a
         with np.errstate(invalid="ignore"):
-            p = [self.lo * o.lo, self.lo * o.hi, self.hi * o.lo, self.hi * o.hi]
+            if o.lo is o.hi:
+                p1, p2 = a.lo * o.lo, a.hi * o.lo
+                if np.isnan(p1 + p2).any():
+                    p1, p2 = np.where(np.isnan(p1), 0.0, p1), np.where(np.isnan(p2), 0.0, p2)
+                return Iv(_dn(np.minimum(p1, p2)), _up(np.maximum(p1, p2)))
+            p = [a.lo * o.lo, a.lo * o.hi, a.hi * o.lo, a.hi * o.hi]
             if np.isnan(p[0] + p[1] + p[2] + p[3]).any():  # rare: only then look for 0 * inf
                 p = [np.where(np.isnan(q), 0.0, q) for q in p]  # 0 * inf: 0 times an unbounded real
         return Iv(_dn(np.minimum(np.minimum(p[0], p[1]), np.minimum(p[2], p[3]))),
