@@ -205,18 +205,21 @@ class Terms:
         return Dual(val, g)
 
 
-def _W_point(z, a, b: Exp, bp1: Exp, inv_bp1: Exp) -> Iv:
-    """W(z, a, b) at float arrays z, a (each a point), outward-rounded, clipped at its minimum 0."""
-    zi, ai = Iv(z), Iv(a)
-    w = (zi.pabs(bp1) - ai.pabs(bp1)) * inv_bp1.iv() - ai.sig(b) * (zi - ai)
-    return Iv(np.maximum(w.lo, 0.0), np.maximum(w.hi, 0.0))
-
-
 def _W_corners(z: Iv, a: Iv, b, bp1, inv_bp1) -> Iv:
     """Range of W over z in [z.lo, z.hi], a in [a.lo, a.hi]. W is convex in z and in a, 0 at z = a,
     increasing in z and decreasing in a where z > a (and the reverse where z < a): its maximum is at
-    a corner and its minimum is 0 or a corner."""
-    c = [_W_point(zz, aa, b, bp1, inv_bp1) for zz, aa in ((z.lo, a.hi), (z.hi, a.lo), (z.lo, a.lo), (z.hi, a.hi))]
+    a corner and its minimum is 0 or a corner. W(z, a) = (|z|^(b+1) - |a|^(b+1))/(b+1) - sig(a, b)(z - a)
+    at each corner, outward-rounded, clipped at its minimum 0; the powers of the four ends once each."""
+    ends = {"zl": Iv(z.lo), "zh": Iv(z.hi), "al": Iv(a.lo), "ah": Iv(a.hi)}
+    pw = {key: x.pabs(bp1) for key, x in ends.items()}
+    sa = {"al": ends["al"].sig(b), "ah": ends["ah"].sig(b)}
+    inv = inv_bp1.iv()
+
+    def corner(zk, ak):
+        w = (pw[zk] - pw[ak]) * inv - sa[ak] * (ends[zk] - ends[ak])
+        return Iv(np.maximum(w.lo, 0.0), np.maximum(w.hi, 0.0))
+
+    c = [corner(zk, ak) for zk, ak in (("zl", "ah"), ("zh", "al"), ("zl", "al"), ("zh", "ah"))]
     hi = np.maximum(np.maximum(c[0].hi, c[1].hi), np.maximum(c[2].hi, c[3].hi))
     lo = np.where(z.lo >= a.hi, c[0].lo, np.where(z.hi <= a.lo, c[1].lo, 0.0))
     return Iv(lo, hi)
