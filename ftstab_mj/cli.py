@@ -63,6 +63,15 @@ def _json_safe(x):
     return x
 
 
+def _header(name: str, description: str, sets) -> str:
+    """"name: description", and when --set changed the file, a second line saying that the description
+    was written for the file and what changed (it may no longer hold: a duration, a bound, a law)."""
+    if not sets:
+        return f"{name}: {description}"
+    keys = ", ".join(dict.fromkeys(text.split("=", 1)[0].strip() for text in sets))  # (validated by now)
+    return (f"{name}: {description}\n  (description possibly stale: written for the file, before --set {keys})")
+
+
 def _progress_line():
     """A callback that rewrites one status line on stderr when it is a terminal (else None)."""
     if not sys.stderr.isatty():
@@ -351,7 +360,7 @@ def cmd_run(args) -> int:
                              + ("a directory" if path.is_dir() else "a read-only file"))
         check_replaceable(path, args.force)  # a symlink or another program's file: not without --force
     say = (lambda *a, **k: None) if args.json else print  # --json: stdout carries the JSON only
-    say(f"{sc.name}: {sc.description}")
+    say(_header(sc.name, sc.description, args.set))
     say(f"  plant {sc.plant.model}, {len(sc.loops)} loop(s) ({', '.join(lp.controller.law for lp in sc.loops)}),"
         f" {sc.sim.duration:g} s, control period {sc.sim.period * 1e3:g} ms,"
         f" physics step {sc.sim.physics_step * 1e3:g} ms ({sc.sim.integrator}), seed {sc.seed}")
@@ -459,7 +468,7 @@ def cmd_sweep(args) -> int:
         raise UsageError("--engine serial: expected no --workers/--scheduler (one process runs everything)")
     if args.scheduler and engine != "dask":
         raise UsageError(f"--scheduler: expected --engine dask, found --engine {engine}")
-    print(f"{sweep.name}: {sweep.description}")
+    print(_header(sweep.name, sweep.description, args.set))
     print(f"  base {sweep.scenario}, {len(rows)} runs -> {out}")
     outcome = run_sweep(sweep.name, rows, task, out, identity, engine=engine, workers=args.workers,
                         scheduler=args.scheduler, resume=args.resume, fmt=args.format)
@@ -474,7 +483,11 @@ def cmd_sweep(args) -> int:
         for path in paths:
             print(f"figure: {path}")
         for fit in fits:
-            print(f"log-log slope in {fit.plot}, {fit.series}: {fit.slope:.3f} ({fit.points} points)")
+            if fit.power_law:
+                print(f"log-log slope in {fit.plot}, {fit.series}: {fit.slope:.3f} ({fit.points} points, "
+                      f"r^2 = {fit.r2:.4f})")
+            else:
+                print(f"no log-log slope in {fit.plot}, {fit.series}: {fit.why_not}")
     if outcome.interrupted:
         return 130
     if outcome.lost:
@@ -580,7 +593,7 @@ def cmd_compare(args) -> int:
     engine = "processes" if args.workers > 1 else "serial"
     out = Path(args.out or Path("runs") / cmp.name)
     out.mkdir(parents=True, exist_ok=True)
-    print(f"{cmp.name}: {cmp.description}")
+    print(_header(cmp.name, cmp.description, args.set))
     print(f"  base {cmp.scenario}, {len(cmp.laws)} laws x {max(1, len(cmp.grid))} -> {len(items)} runs -> {out}")
     results = dict(execute(items, task, engine, args.workers))
     rows, series = [], {}

@@ -151,8 +151,38 @@ def _fmt(v) -> str:
     return str(v)
 
 
+# The unit of each metric as the table prints it after the value ("" for counts, flags and text):
+# s seconds; u the control's unit; chain: chain units (z_i in m/s^(i-1), or rad/s^(i-1) on a joint,
+# and V1 of them). UNITS_LEGEND says it under the table. Definitions: ftstab_mj/metrics.py.
+METRIC_UNITS = {
+    "n_samples": "", "z0": "chain", "V1_initial": "chain", "V1_final": "chain", "settle_level": "chain",
+    "settle_time": "s", "settle_time_z1": "s", "time_bound": "s", "workspace_left": "", "bound_applies": "",
+    "beat_bound": "", "final_window_start": "s", "final_abs_z_max": "chain", "chattering": "u/s",
+    "chattering_du_dt_var": "(u/s)^2", "chattering_zero_crossings": "1/s", "chattering_band_rms": "u",
+    "effort_abs": "u s", "effort_sq": "u^2 s", "u_max_abs": "u", "eps": "chain", "eps_entry_time": "s",
+    "V1_min_after_entry": "chain", "V1_max_after_entry": "chain", "phi_hat_max": "u", "phi_hat_final": "u",
+    "certificate": "", "bound_applies_reason": "", "u_needed": "u", "estimation_error_max": "chain",
+    "estimation_error_rms": "chain", "time_saturated": "s", "saturated_fraction": "", "chattering_applied": "u/s",
+    "u_applied_max_abs": "u",
+    # theorem 3 (true bounds)
+    "Phibar": "u", "Delta": "chain", "phi_hat_limsup": "u", "V1_max_final": "chain", "Delta_held": "",
+    "phi_hat_max_final": "u", "phi_hat_bound_held": "", "V1_min_final": "chain", "eps_reached": "",
+}
+UNITS_LEGEND = ("units: s seconds; u the control's unit (m/s^r on the carts, N m on the arms); "
+                "chain units: z_i in m/s^(i-1) or rad/s^(i-1), V1 of them")
+
+
+def _with_unit(key: str, val) -> str:
+    unit = METRIC_UNITS.get(key, "")
+    text = _fmt(val)
+    if not unit or val is None or isinstance(val, (bool, str)):
+        return text
+    return f"{text} {'chain units' if unit == 'chain' else unit}"
+
+
 def format_table(metrics: dict) -> str:
-    """A human-readable table of a metrics dict (ftstab_mj.metrics.compute_metrics; one block per loop)."""
+    """A human-readable table of a metrics dict (ftstab_mj.metrics.compute_metrics; one block per loop),
+    each value with its unit (METRIC_UNITS), the units explained on the last line."""
     lines = [f"status {metrics['status']}, {metrics['n_samples']} samples, {_fmt(metrics['duration'])} s"]
     for name, m in metrics["loops"].items():
         lines.append(f"loop {name} ({m['law']})")
@@ -161,10 +191,12 @@ def format_table(metrics: dict) -> str:
                 continue
             if key == "certificate" and val:
                 val = f"{val['status']}, c in [{_fmt(val['c_lower'])}, {_fmt(val['c_upper'])}] (guaranteed)"
-            lines.append(f"  {key:<22} {_fmt(val)}")
+            lines.append(f"  {key:<26} {_with_unit(key, val)}")
         th = m.get("theorem3")
         if th:
             lines.append("  theorem 3 (true bounds):")
             for key, val in th.items():
-                lines.append(f"    {key:<20} {_fmt(val)}")
+                lines.append(f"    {key:<24} {_with_unit(key, val)}")
+    if metrics["loops"]:
+        lines.append(UNITS_LEGEND)
     return "\n".join(lines)

@@ -204,7 +204,7 @@ fit = true
 ''')
     res = run_cli("sweep", path, "--out", tmp_path / "o", "--report")
     assert res.returncode == 0, res.stderr
-    slope = float(re.search(r"log-log slope in \S+, all runs: (\S+) \(4 points\)", res.stdout).group(1))
+    slope = float(re.search(r"log-log slope in \S+, all runs: (\S+) \(4 points, r\^2 = ", res.stdout).group(1))
     assert abs(slope - 1 / (1 - 0.2)) < 0.05, slope
 
 

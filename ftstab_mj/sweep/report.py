@@ -2,9 +2,14 @@
 
 Each figure shows column ``y`` against column ``x`` for the completed runs, one series per value of
 column ``by``: every run as a faint dot, the median over the runs sharing an x (Monte Carlo draws)
-as a line. With ``fit = true`` the slope of log10(median y) against log10(x), fitted by least
-squares per series, is in the legend and in the returned fits. Runs that did not complete, or whose
-value is missing or not positive on a log axis, are left out and counted on the figure.
+as a line, labelled "median" when there are several. With ``fit = true`` the slope of
+log10(median y) against log10(x), fitted by least squares per series, is in the legend and in the
+returned fits, but only for a series that is a power law: at least MIN_FIT_POINTS distinct x (a
+line through two points always fits) and r^2 >= MIN_R2 on log-log, r^2 = 1 - sum(res^2) / sum((log10
+y - mean)^2) with res the residuals of the fit. Otherwise the figure and the fit say "not a power
+law" with r^2 and no slope is drawn. Runs that did not complete, or whose value is missing or not
+positive on a log axis, are left out and counted on the figure. A title too wide for the figure is
+wrapped onto more lines.
 
 Drawn with matplotlib's object API (``Figure`` + Agg canvas): no pyplot, no global state.
 """
@@ -14,6 +19,7 @@ from __future__ import annotations
 import difflib
 import math
 import re
+import textwrap
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -26,20 +32,57 @@ from ftstab_mj.sweep.spec import PlotSpec, Sweep
 from ftstab_mj.sweep.table import read_table
 
 
+MIN_FIT_POINTS = 3  # distinct x values: fewer cannot tell a power law from anything else
+MIN_R2 = 0.99  # on log-log: below it the medians bend away from one line (a floor, a knee, a jump)
+
+
 @dataclass(frozen=True)
 class Fit:
-    """Least-squares line log10(y) = slope * log10(x) + intercept through a series' medians."""
+    """Least-squares line log10(y) = slope * log10(x) + intercept through a series' medians, with
+    its r^2 on log-log; slope and intercept are None when the series is not a power law (power_law
+    False: fewer than MIN_FIT_POINTS points or r^2 < MIN_R2)."""
 
     plot: str  # the PNG file name
     series: str  # "by = value", or "all runs"
-    slope: float
-    intercept: float
+    slope: float | None
+    intercept: float | None
     points: int  # distinct x values fitted
+    r2: float | None = None  # None with fewer than MIN_FIT_POINTS points
+    power_law: bool = True
+
+    @property
+    def why_not(self) -> str:
+        """Why no slope was fitted ("" when one was)."""
+        if self.power_law:
+            return ""
+        if self.r2 is None:
+            return f"{self.points} points: a line through fewer than {MIN_FIT_POINTS} always fits"
+        return f"not a power law: r^2 = {self.r2:.3f} < {MIN_R2:g} on log-log"
 
 
 def loglog_fit(x, y) -> tuple[float, float]:
     """(slope, intercept) of the least-squares line through (log10 x, log10 y); x, y > 0, >= 2 points."""
     return tuple(float(c) for c in np.polyfit(np.log10(x), np.log10(y), 1))
+
+
+def loglog_r2(x, y, slope: float, intercept: float) -> float:
+    """r^2 of the line log10 y = slope log10 x + intercept (1 when y is constant and the line is exact)."""
+    lx, ly = np.log10(x), np.log10(y)
+    res = ly - (slope * lx + intercept)
+    tot = float(np.sum((ly - ly.mean()) ** 2))
+    ss = float(np.sum(res ** 2))
+    return 1.0 - ss / tot if tot > 0 else (1.0 if ss == 0 else 0.0)
+
+
+def fit_series(plot: str, series: str, x, y) -> Fit:
+    """The Fit of one series' medians (x, y > 0), refused when it is not a power law (see the module)."""
+    if len(x) < MIN_FIT_POINTS:
+        return Fit(plot, series, None, None, len(x), None, False)
+    slope, icpt = loglog_fit(x, y)
+    r2 = loglog_r2(x, y, slope, icpt)
+    if r2 < MIN_R2:
+        return Fit(plot, series, None, None, len(x), r2, False)
+    return Fit(plot, series, slope, icpt, len(x), r2, True)
 
 
 def _medians(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -59,8 +102,20 @@ def _column(table: dict, name: str, sweep: Sweep, where: str) -> list:
     return table[name]
 
 
-def plot_one(spec: PlotSpec, table: dict, sweep: Sweep, where: str, path: Path) -> list[Fit]:
-    """Draw one figure to ``path``; return its fits (empty without ``fit``)."""
+def _fit_title(ax, title: str, renderer) -> None:
+    """Set the axes title and lay the figure out, the title wrapped onto as many lines as it takes
+    to lie inside the figure (it is centred on the axes, not on the figure)."""
+    fig_w = ax.figure.bbox.width
+    for width in range(len(title), 9, -2):  # characters per line, fewer until the title fits
+        ax.set_title(textwrap.fill(title, width), fontsize=9)
+        ax.figure.tight_layout()
+        ext = ax.title.get_window_extent(renderer)
+        if ext.x0 >= 0.01 * fig_w and ext.x1 <= 0.99 * fig_w:
+            return
+
+
+def draw_plot(spec: PlotSpec, table: dict, sweep: Sweep, where: str, name: str):
+    """(matplotlib Figure, fits) of one ``[[report.plot]]``; ``name`` is the PNG file name the fits cite."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
     from matplotlib.ticker import NullFormatter
@@ -75,7 +130,7 @@ def plot_one(spec: PlotSpec, table: dict, sweep: Sweep, where: str, path: Path) 
     keep = [i for i in range(len(xs)) if status[i] == COMPLETED and usable(xs[i], spec.logx) and usable(ys[i], spec.logy)]
     left_out = len(xs) - len(keep)
     fig = Figure(figsize=(5.0, 3.6), dpi=200)
-    FigureCanvasAgg(fig)
+    canvas = FigureCanvasAgg(fig)
     ax = fig.add_subplot()
     fits = []
     groups = sorted({by[i] for i in keep}, key=lambda v: (type(v).__name__, v))  # one type per column but None
@@ -85,14 +140,18 @@ def plot_one(spec: PlotSpec, table: dict, sweep: Sweep, where: str, path: Path) 
         label = f"{spec.by} = {g}" if spec.by else "all runs"
         color = f"C{n % 10}"
         mx, my = _medians(x, y)
-        if len(mx) < len(x):  # several runs per x: show them all, faint
-            ax.plot(x, y, ".", color=color, alpha=0.3, markersize=3)
         text = label
-        if spec.fit and len(mx) >= 2:
-            slope, icpt = loglog_fit(mx, my)
-            fits.append(Fit(path.name, label, slope, icpt, len(mx)))
-            text = f"{label}: slope {slope:.2f}"
-            ax.plot(mx, 10 ** icpt * mx ** slope, "--", color=color, linewidth=0.8)
+        if len(mx) < len(x):  # several runs per x: show them all, faint; the line is their median
+            ax.plot(x, y, ".", color=color, alpha=0.3, markersize=3)
+            text = f"{label}, median"
+        if spec.fit:
+            fit = fit_series(name, label, mx, my)
+            fits.append(fit)
+            if fit.power_law:
+                text = f"{text}: slope {fit.slope:.2f}"
+                ax.plot(mx, 10 ** fit.intercept * mx ** fit.slope, "--", color=color, linewidth=0.8)
+            else:
+                text = f"{text}: no slope ({'r$^2$ = ' + format(fit.r2, '.2f') if fit.r2 is not None else 'too few points'})"
         ax.plot(mx, my, "o-", color=color, label=text, markersize=4)
     ax.set_xscale("log" if spec.logx else "linear")
     ax.set_yscale("log" if spec.logy else "linear")
@@ -102,14 +161,19 @@ def plot_one(spec: PlotSpec, table: dict, sweep: Sweep, where: str, path: Path) 
         ax.xaxis.set_minor_formatter(NullFormatter())
     ax.set_xlabel(spec.xlabel or spec.x)
     ax.set_ylabel(spec.ylabel or spec.y)
-    ax.set_title(spec.title or f"{sweep.name}", fontsize=9)
     ax.grid(True, which="both", linewidth=0.3, alpha=0.5)
     if groups:
         ax.legend(fontsize=7)
     if left_out:
         ax.text(0.99, 0.01, f"{left_out} run(s) not completed or without a value: not shown", fontsize=6,
                 ha="right", va="bottom", transform=ax.transAxes)
-    fig.tight_layout()
+    _fit_title(ax, spec.title or f"{sweep.name}", canvas.get_renderer())  # (lays the figure out)
+    return fig, fits
+
+
+def plot_one(spec: PlotSpec, table: dict, sweep: Sweep, where: str, path: Path) -> list[Fit]:
+    """Draw one figure to ``path``; return its fits (empty without ``fit``)."""
+    fig, fits = draw_plot(spec, table, sweep, where, path.name)
     fig.savefig(path)
     return fits
 
