@@ -172,3 +172,22 @@ def test_bad_input_is_one_line_and_exit_2(logs, tmp_path, capsys):
     res = run_cli("report", damaged, "--out", tmp_path / "fig.png")  # and once as a user runs it
     assert res.returncode == 2 and res.stderr.count("\n") == 1 and "Traceback" not in res.stderr
     assert sorted(p.name for p in tmp_path.iterdir()) == ["damaged.mcap", "notes.mcap"]  # no temp file left
+
+
+def test_a_truncated_log_is_drawn_up_to_its_last_complete_chunk_and_an_empty_one_refused(logs, tmp_path, capsys):
+    whole = (logs / "cart_r2_robust.mcap").read_bytes()
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(whole[:len(whole) // 2])  # a run killed half way
+    assert main(["report", str(cut), "--out", str(tmp_path / "cut.png")]) == 0
+    err = capsys.readouterr().err
+    assert err.startswith("warning: ") and "truncated log" in err
+    log, full = read_log(cut), read_log(logs / "cart_r2_robust.mcap")
+    n = log.n_samples
+    assert 0 < n < full.n_samples and not log.complete
+    rep = report_data(log)
+    assert rep.title.endswith("truncated log") and rep.notes == (log.warning,)
+    z1 = panel(rep, "cart", "z1").curves[0]
+    assert np.array_equal(z1.x, full.loops["cart"]["t"][:n]) and np.array_equal(z1.y, full.loops["cart"]["z"][:n, 0])
+    cut.write_bytes(whole[:5000])  # the run's description, no sample yet
+    assert main(["report", str(cut), "--out", str(tmp_path / "empty.png")]) == 2
+    assert "the log has no samples" in capsys.readouterr().err and not (tmp_path / "empty.png").exists()
