@@ -27,3 +27,12 @@ def test_law_costs_benchmark_prints_every_law_of_the_comparison():
     for row in ("robust ", "levant_qc", "levant_nested", "super_twisting", "plestan_adaptive", "linear"):
         assert row in out.stdout, out.stdout
     assert "python" in out.stdout and ("native" in out.stdout or not native.available())
+
+
+def test_live_costs_benchmark_prints_every_case():
+    out = subprocess.run([sys.executable, "-m", "benchmarks.live_costs", "--repeat", "1", "--duration", "1.5"],
+                         capture_output=True, text=True, timeout=300, cwd=ROOT)
+    assert out.returncode == 0, out.stderr
+    for row in ("plain ", "--foxglove, no client", "--foxglove, one client subscribed"):
+        assert row in out.stdout, out.stdout
+    int(out.stdout.split("received per run: [")[1].split("]")[0])  # how many depends on when the client got in

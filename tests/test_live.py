@@ -245,3 +245,38 @@ def test_a_foxglove_port_in_use_is_one_line_exit_2_and_no_log(tmp_path):
     assert done.returncode == 2 and "Traceback" not in done.stderr
     assert done.stderr.startswith("error: --foxglove 127.0.0.1:") and len(done.stderr.strip().splitlines()) == 1
     assert not any(tmp_path.iterdir())
+
+
+def test_the_python_api_streams_to_a_rerun_viewer_without_writing_a_file(tmp_path):
+    """ftstab_mj.run(live=URL) with out=None: the RerunSink streams to the viewer only (no file), and
+    the viewer (a `rerun --save` receiver on a free port) gets every sample the run returns."""
+    import ftstab_mj
+
+    port = free_port()
+    got = tmp_path / "received.rrd"
+    receiver = subprocess.Popen([str(Path(sys.executable).parent / "rerun"), "--port", str(port), "--save", str(got)],
+                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        _wait_listening(port)
+        res = ftstab_mj.run(SCENARIO, overrides={"sim.duration": 0.5}, live=f"rerun+http://127.0.0.1:{port}/proxy")
+        assert res.status == "completed" and res.logs == {}
+        _wait_rows(got, "/loop/cart/V1/log10_V1", len(res.samples["cart"]["t"]) + 1)  # + its style row
+    finally:
+        receiver.send_signal(signal.SIGINT)
+        receiver.communicate(timeout=60)
+    assert not any(p.suffix in (".mcap", ".rrd") for p in tmp_path.iterdir() if p != got)
+
+
+@pytest.mark.parametrize("env, platform, expected", [
+    ({"DISPLAY": ":0"}, "linux", "spawn"), ({"WAYLAND_DISPLAY": "wayland-0"}, "linux", "spawn"),
+    ({}, "linux", "serve"), ({}, "darwin", "spawn")])
+def test_live_true_spawns_a_viewer_with_a_display_and_serves_without(monkeypatch, env, platform, expected):
+    from ftstab_mj.logs import live
+
+    for name in ("DISPLAY", "WAYLAND_DISPLAY"):
+        monkeypatch.delenv(name, raising=False)
+    for name, value in env.items():
+        monkeypatch.setenv(name, value)
+    monkeypatch.setattr(live.sys, "platform", platform)
+    assert live.rerun_target(True) == live.rerun_target("auto") == expected
+    assert live.rerun_target(False) is None and live.rerun_target("rerun+http://h:1/proxy") == "rerun+http://h:1/proxy"
