@@ -1,10 +1,13 @@
 """Faults at the edges of a run: a callback of the caller's, a planted symlink, a log without samples."""
 
+import os
+
 import mujoco
 import numpy as np
 import pytest
 
 from conftest import ROOT, run_cli
+from test_interruptions import _rrd_rows
 from ftstab_mj.logs import McapSink, RerunSink
 from ftstab_mj.logs.reader import read_log
 from ftstab_mj.logs.rerun_sink import write_rrd
@@ -197,3 +200,97 @@ def test_a_disk_that_fills_at_a_chosen_byte(tmp_path, capsys, monkeypatch, limit
     monkeypatch.setattr(files, "RESERVE_BYTES", 0)  # the fake counts log bytes only
     code = main(["run", "cart_r2_robust", "--out", str(tmp_path), "--set", "sim.duration=20"])
     _check_full_disk_outcome(code, capsys.readouterr().err, tmp_path)
+
+
+class FullDisk:
+    """A disk of ``free`` bytes holding the MCAP log and its reserve (the .rrd is elsewhere): a write
+    past the room writes what fits and fails with ENOSPC, as a full disk does; cutting the file back
+    and deleting the reserve give their bytes back. sizes: the log's size after each complete flush."""
+
+    def __init__(self, monkeypatch, free):
+        import errno
+
+        from ftstab_mj.logs import files, mcap_sink
+
+        disk = self
+        self.free, self.sizes = free, []
+
+        class OnDisk(files.LogFile):
+            def write(self, data):
+                view = memoryview(data).cast("B")
+                grow = max(0, self.tell() + len(view) - os.fstat(self.fileno()).st_size)
+                if grow > disk.free:
+                    fit = len(view) - (grow - disk.free)
+                    super().write(view[:fit])
+                    disk.free -= grow - (len(view) - fit)
+                    raise OSError(errno.ENOSPC, "No space left on device")
+                disk.free -= grow
+                return super().write(view)
+
+            def truncate(self, size=None):
+                disk.free += max(0, os.fstat(self.fileno()).st_size - size)
+                return super().truncate(size)
+
+            def flush(self):
+                super().flush()
+                disk.sizes.append(os.fstat(self.fileno()).st_size)
+
+        class Reserve:
+            def __init__(self, log_path):
+                self.held = min(files.RESERVE_BYTES, disk.free)
+                disk.free -= self.held
+
+            def release(self):
+                disk.free, self.held = disk.free + self.held, 0
+
+        def create_log(path, force=False, what="log"):
+            f = files.create_log(path, force, what)
+            f.__class__ = OnDisk
+            return f
+
+        monkeypatch.setattr(mcap_sink, "create_log", create_log)
+        monkeypatch.setattr(mcap_sink, "Reserve", Reserve)
+
+
+def test_an_mcap_batch_that_fills_the_disk_is_cut_back_and_the_log_records_failed(tmp_path, capsys, monkeypatch):
+    """The disk fills in the middle of a batch (the first, the third, the fifth and last): the batch
+    is cut back, and the room of the reserve lets the log record "failed" and the cause after its
+    last complete batch, with a summary that indexes what it holds; the .rrd holds the same samples
+    and is closed "failed" too. A disk the last batch fills: the reserve holds the closing records."""
+    from collections import Counter
+
+    from mcap.reader import make_reader
+
+    from ftstab_mj.cli import main
+
+    argv = ["run", "cart_r2_robust", "--set", "sim.duration=5"]  # 5 batches of 1000 samples
+    ref = FullDisk(monkeypatch, 1 << 40)
+    assert main([*argv, "--out", str(tmp_path / "ref")]) == 0
+    capsys.readouterr()
+    opened, batches = ref.sizes[1], ref.sizes[2:7]  # after the metadata, the opening, each batch
+    reserve = 64 * 1024
+    cases = [(reserve + (opened + batches[0]) // 2, 0), (reserve + (batches[1] + batches[2]) // 2, 2000),
+             (reserve + (batches[3] + batches[4]) // 2, 4000),
+             (reserve + batches[4] + 10, None)]  # the last batch fills the disk: the reserve holds the closing
+    static = _rrd_rows(tmp_path / "ref" / "cart_r2_robust.rrd", "/loop/cart/V1/log10_V1") - 5000
+    for k, (free, kept) in enumerate(cases):
+        out = tmp_path / f"full{k}"
+        FullDisk(monkeypatch, free)
+        code = main([*argv, "--out", str(out)])
+        err = capsys.readouterr().err
+        mcap, rrd = out / "cart_r2_robust.mcap", out / "cart_r2_robust.rrd"
+        log = read_log(mcap)
+        assert log.complete and _rrd_rows(rrd, "/loop/cart/V1/log10_V1") - static == log.n_samples, k
+        if kept is None:
+            assert code == 0 and log.recorded["status"] == "completed" and log.n_samples == 5000, err
+            continue
+        assert code == 1 and err.count("\n") == 1 and "Traceback" not in err, err
+        assert err == (f"error: run failed: {mcap}: cannot write the MCAP log: No space left on device "
+                       f"(logs closed with status failed: {mcap}, {rrd})\n")
+        assert log.recorded["status"] == "failed" and log.n_samples == kept, (k, log.recorded, log.n_samples)
+        assert log.recorded["message"] == f"{mcap}: cannot write the MCAP log: No space left on device"
+        with open(mcap, "rb") as f:  # its summary (chunk indexes, statistics) is the one of what it holds
+            reader = make_reader(f)
+            counts = reader.get_summary().statistics.channel_message_counts
+            seen = Counter(channel.topic for _, channel, _ in reader.iter_messages())
+        assert seen["/loop/cart"] == kept and sum(seen.values()) == sum(counts.values()), (seen, counts)

@@ -9,7 +9,9 @@ summary with schemas, channels, statistics, chunk and metadata indexes, summary 
 magic); the one-off records are serialized with the ``mcap`` package's own record classes.
 
 Every :meth:`McapFile.flush` ends the current chunk and flushes the file: a reader that stops
-at the first incomplete record gets everything flushed so far (logs/reader.py).
+at the first incomplete record gets everything flushed so far (logs/reader.py). After a write
+error (a full disk), :meth:`McapFile.rollback` cuts the file back to the end of the last complete
+flush and forgets what came after, so that the file can still be ended (a status, the summary).
 
 CRC-32s are written as the format defines them: every chunk's uncompressed data, the whole data
 section (in DataEnd) and the summary (in the Footer), so a reader tells a damaged file from an
@@ -57,10 +59,36 @@ class McapFile:
         self._n_chunks = 0
         self._data_crc = 0  # CRC-32 of every byte of the data section written so far
         self._written: dict[int, int] = {}  # channel -> messages in the chunks written
+        self._mark()
         if compression == "zstd":  # level 1: ~2x faster than the default 3, files ~10% larger here
             import zstandard
 
             self._zstd = zstandard.ZstdCompressor(level=1)
+
+    # -- the state after the last complete flush, which a write error returns to -----------------
+    def _mark(self) -> None:
+        self._flushed = (self._f.tell(), len(self._schemas), len(self._channels), len(self._chunk_indexes),
+                         len(self._metadata_indexes), dict(self._counts), self._t_first, self._t_last,
+                         self._n_chunks, self._data_crc, dict(self._written))
+
+    def rollback(self) -> None:
+        """After a write error: cut the file back to where the last complete :meth:`flush` left it
+        and forget every record added since (a chunk, schemas and channels registered for it, the
+        sequence numbers it used); writing can go on from there. Raises OSError when the file
+        cannot be cut."""
+        (end, n_schemas, n_channels, n_chunks, n_metadata, self._counts, self._t_first, self._t_last,
+         self._n_chunks, self._data_crc, self._written) = self._flushed
+        self._f.truncate(end)
+        self._f.seek(end)
+        del self._schemas[n_schemas:], self._channels[n_channels:]
+        del self._chunk_indexes[n_chunks:], self._metadata_indexes[n_metadata:]
+        self._counts, self._written = dict(self._counts), dict(self._written)
+        self._parts, self._size, self._index, self._t0, self._t1 = [], 0, {}, None, None
+
+    @property
+    def ids(self) -> tuple[int, int]:
+        """(schemas, channels) registered: the ids in use are 1..n of each."""
+        return len(self._schemas), len(self._channels)
 
     # -- one-off records --------------------------------------------------------------------------
     def _write(self, data: bytes) -> None:
@@ -221,6 +249,7 @@ class McapFile:
                 self._written[ch] = self._written.get(ch, 0) + sum(len(p) for p in pairs)
             self._parts, self._size, self._index, self._t0, self._t1 = [], 0, {}, None, None
         self._f.flush()
+        self._mark()
 
     def finish(self) -> None:
         """End the data section and write the summary, footer and closing magic."""

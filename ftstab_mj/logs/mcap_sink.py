@@ -21,7 +21,6 @@ file, so a killed run leaves every batch written before its last flush readable 
 
 from __future__ import annotations
 
-import os
 import platform
 
 import numpy as np
@@ -177,7 +176,9 @@ def _bytes_field(tag: int, text: str) -> bytes:
 class McapSink:
     """Writes a run to an MCAP file at ``path``, created at :meth:`open` without following a symlink
     and replacing only one of our logs unless ``force`` (logs/files.py). A write error (disk full)
-    raises LogWriteError naming the file; the file is then cut back to its last complete batch.
+    raises LogWriteError naming the file; the file is then cut back to its last complete batch and
+    kept open, so that :meth:`close` can still record the status ("failed" and the cause) in the
+    room of the 64 KiB reserve the log took at its opening (logs/files.Reserve).
 
     pose_rate: Hz of simulated time at which body poses go to ``/tf`` (a display rate: the loop
     samples are all logged); compression: "lz4" | "zstd" | "none", applied per chunk (= per batch);
@@ -199,7 +200,7 @@ class McapSink:
     @write_errors(WHAT)
     def open(self, info: RunInfo) -> None:
         self._file = create_log(self.path, self.force, WHAT)  # LogError (bad input) when refused
-        self._good = 0  # file size after the last complete flush: a failed write is cut back to it
+        self._failed = None  # the write error that stopped the batches (the log then only closes)
         self._reserve = None
         try:
             self._reserve = Reserve(self.path)
@@ -256,26 +257,30 @@ class McapSink:
 
     def _flush(self) -> None:
         """End the chunk; on a write error cut the file back to its last complete flush (no torn
-        record left, every earlier batch readable) and close it."""
+        record left, every earlier batch readable; the loops registered since are forgotten too),
+        and close it when even that fails."""
         try:
             self._writer.flush()
-        except OSError:
-            self._abandon()
+        except OSError as exc:
+            self._failed = exc
+            try:
+                self._writer.rollback()
+            except OSError:
+                self._abandon()  # the file stays as far as it got; the reader stops at its torn record
+                raise exc from None
+            schemas, channels = self._writer.ids
+            self._loops = {n: cl for n, cl in self._loops.items() if cl[0] <= channels}
+            self._loop_schemas = {d: i for d, i in self._loop_schemas.items() if i <= schemas}
             raise
-        self._good = self._file.tell()
 
     def _abandon(self) -> None:
         self._reserve.release()
-        try:
-            os.ftruncate(self._file.fileno(), self._good)
-        except OSError:
-            pass  # the file stays as far as it got; the reader stops at its torn record
         self._file.close()
         self._writer = None
 
     @write_errors(WHAT)
     def write(self, batch: SampleBatch) -> None:
-        if self._writer is None:
+        if self._writer is None or self._failed is not None:
             raise LogWriteError(self.path, f"cannot write the {WHAT}: it was abandoned after a write error")
         for name, arrays in batch.loops.items():
             if len(arrays["t"]) == 0:
@@ -285,8 +290,8 @@ class McapSink:
             self._writer.add_fixed_messages(channel, times, layout.encode(arrays))
         if self._ch_tf is not None and batch.body_pos.shape[1]:  # a batch may come without poses
             self._write_poses(batch)
-        self._n += len(batch)
         self._flush()
+        self._n += len(batch)  # the samples in the file (the /metrics time)
 
     def _write_poses(self, batch):
         t = np.asarray(next(iter(batch.loops.values()))["t"], dtype=float)
@@ -299,19 +304,28 @@ class McapSink:
 
     @write_errors(WHAT)
     def close(self, status: str, metrics: dict, message: str = "") -> None:
-        """Write /metrics (status, message, metrics) and the summary. After a write error the log was
-        cut back and closed: nothing more is written (it ends at its last complete batch)."""
+        """Write /metrics (status, message, metrics) and the summary, also after a batch that could
+        not be written (the log ends at its last complete batch, then says how the run ended). When
+        even /metrics cannot be written, the log ends at its last complete batch, without a status."""
         if self._writer is None:
             return
         self._reserve.release()  # its room is for what follows, on a disk that may have filled up
         t_end = int(round(self._n * self._info.period * 1e9))
         self._writer.add_message(self._ch_metrics, t_end, _json({"status": status, "message": message, "metrics": metrics}))
-        self._flush()  # /metrics is on disk before the summary, which a full disk may still refuse
+        try:
+            self._flush()  # /metrics is on disk before the summary, which a full disk may still refuse
+        except OSError:
+            self._abandon()
+            raise
         try:
             self._writer.finish()
             self._file.close()
         except OSError:
-            self._abandon()  # the log ends with its /metrics record, without the summary (index)
+            try:
+                self._writer.rollback()  # the log ends with its /metrics record, without the summary (index)
+            except OSError:
+                pass  # ... and a torn summary the reader stops at
+            self._abandon()
             self.closed_status = status  # ... so it does record the status
             raise
         self._writer = None
