@@ -2,12 +2,16 @@
 at seeded random moments over the whole command (interpreter start, imports, setup, every batch,
 closing), and what the logs hold afterwards.
 
-    python benchmarks/interruptions.py [--tries 60] [--seed 1] [--scenario cart_r2_robust]
+    python benchmarks/interruptions.py [--tries 60] [--seed 1] [--scenario cart_r2_robust] [--entry both]
 
-Each try is classified: "no log" (stopped before the logs were opened: none written, exit
-128 + signal), "interrupted" (two complete logs, the same samples in both, status interrupted,
-recorded metrics equal to the replayed ones, exit 128 + signal), "completed" (the signal came
-after the run), or a failure (anything else: printed, and the script exits 1).
+The command is started as ``python -m ftstab_mj`` and as the installed ``ftstab`` script in turn
+(--entry both; each gets every signal). Each try is classified: "no log" (stopped before the
+logs were opened: none written, exit 128 + signal), "interrupted" (two complete logs, the same
+samples in both, status interrupted, recorded metrics equal to the replayed ones, exit 128 +
+signal, "the logs say so" only then), "completed" (the signal came after the logs were closed:
+exit 0), "start-up" (a traceback of Python's own start-up, before the entry's first line runs:
+no frame of ours, no log; listed, not a failure of the command, whose handlers do not exist yet),
+or a failure (anything else: printed, and the script exits 1).
 """
 
 from __future__ import annotations
@@ -15,6 +19,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -39,6 +44,8 @@ def main() -> int:
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--scenario", default="cart_r2_robust")
     ap.add_argument("--duration", type=float, default=3.0, help="sim.duration of each run (s)")
+    ap.add_argument("--entry", choices=("module", "script", "both"), default="both",
+                    help="python -m ftstab_mj, the ftstab script next to this Python, or both in turn")
     args = ap.parse_args()
     import numpy as np
 
@@ -46,11 +53,18 @@ def main() -> int:
     from ftstab_mj.metrics import compute_metrics
 
     env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
-    cmd = [sys.executable, "-m", "ftstab_mj", "run", args.scenario, "--set", f"sim.duration={args.duration}"]
+    entries = {"module": [sys.executable, "-m", "ftstab_mj"], "script": [str(Path(sys.executable).parent / "ftstab")]}
+    entries = {k: v for k, v in entries.items() if args.entry in (k, "both")}
+    run = ["run", args.scenario, "--set", f"sim.duration={args.duration}"]
 
-    def start(out):
-        return subprocess.Popen(cmd + ["--out", str(out)], env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
-                                text=True, preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    def start(out, entry=next(iter(entries))):
+        return subprocess.Popen(entries[entry] + run + ["--out", str(out)], env=env, stdout=subprocess.DEVNULL,
+                                stderr=subprocess.PIPE, text=True,
+                                preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+
+    def ours(err):  # a traceback through our code (after the entry's first line), not Python's start-up:
+        # only a SIGINT has a handler (Python's) in the start-up, that of SIGTERM and SIGHUP kills quietly
+        return any("ftstab_mj" + os.sep in f and not f.endswith("__init__.py") for f in re.findall(r'File "([^"]+)"', err))
 
     with tempfile.TemporaryDirectory() as tmp:
         ref = Path(tmp) / "ref"
@@ -63,17 +77,24 @@ def main() -> int:
             - read_log(ref / f"{args.scenario}.mcap").n_samples
         rng = np.random.default_rng(args.seed)
         sigs = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
-        outcomes, failures = Counter(), []
+        outcomes, failures, startup, same = Counter(), [], [], 0
         for k, delay in enumerate(rng.uniform(0.0, whole, args.tries)):
             sig = sigs[k % 3]
+            entry = list(entries)[(k // 3) % len(entries)]
             out = Path(tmp) / f"t{k}"
-            p = start(out)
+            p = start(out, entry)
             time.sleep(delay)
             p.send_signal(sig)
             _, err = p.communicate()
             mcap, rrd = out / f"{args.scenario}.mcap", out / f"{args.scenario}.rrd"
             why = ""
-            if "Traceback" in err:
+            if (sig == signal.SIGINT and err.rstrip().endswith("KeyboardInterrupt") and not ours(err)
+                    and not mcap.exists() and not rrd.exists()):
+                outcomes["start-up"] += 1
+                startup.append(f"try {k}: {entry} {signal.Signals(sig).name} at {delay * 1e3:.1f} ms: exit {p.returncode}: "
+                               + " / ".join(err.strip().splitlines()[-2:]))
+                continue
+            if "Traceback" in err or "Exception ignored" in err:
                 why = "traceback"
             elif not mcap.exists() and not rrd.exists():
                 kind = "no log" if p.returncode in (128 + sig, -sig) else "?"
@@ -86,16 +107,24 @@ def main() -> int:
                     why = "log without status"
                 elif (status == "interrupted") != (p.returncode == 128 + sig) or (status == "completed") != (p.returncode == 0):
                     why = f"status {status} but exit {p.returncode}"
+                elif "the logs say so" in err and status != "interrupted":
+                    why = f"says the logs say so, but they say {status}"
                 elif json.loads(json.dumps(compute_metrics(log.info, log.loops, status))) != log.recorded["metrics"]:
                     why = "recorded metrics differ from the replayed ones"
                 elif any(rrd_rows(rrd, f"/loop/{n}/V1/log10_V1") - static != log.n_samples for n in log.loops):
                     why = "the .rrd and the .mcap hold different samples"
+                else:
+                    same += 1
             if why:
-                failures.append(f"try {k}: {signal.Signals(sig).name} at {delay:.3f} s: {why}: {err.strip()[-300:]}")
+                failures.append(f"try {k}: {entry} {signal.Signals(sig).name} at {delay:.3f} s: {why}: {err.strip()[-300:]}")
                 kind = "FAILED"
             outcomes[kind] += 1
-    print(f"{args.tries} tries, {args.scenario}, sim.duration {args.duration} s, whole command {whole:.2f} s, "
-          f"seed {args.seed}: " + ", ".join(f"{n} {k}" for k, n in sorted(outcomes.items())))
+    print(f"{args.tries} tries ({' and '.join(entries)}), {args.scenario}, sim.duration {args.duration} s, whole "
+          f"command {whole:.2f} s, seed {args.seed}: " + ", ".join(f"{n} {k}" for k, n in sorted(outcomes.items())))
+    print(f"the .mcap and the .rrd hold the same samples: {same} of the {same + sum('different samples' in f for f in failures)}"
+          " tries that left logs with a status")
+    for line in startup:
+        print("start-up (Python's, before the entry's first line):", line)
     for line in failures:
         print(line)
     return 1 if failures else 0

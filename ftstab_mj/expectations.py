@@ -20,18 +20,33 @@ Example::
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field, fields
 
 from ftstab_mj import keypath
 from ftstab_mj.errors import ScenarioError
 from ftstab_mj.tomlfile import dumps, read_toml
-from ftstab_mj.validate import number_problem
-
-SPEC_KEYS = ("value", "atol", "rtol", "min", "max", "null")
+from ftstab_mj.validate import Reader, describe, non_negative
 
 
 class ExpectationError(ScenarioError):
     """An expectation file is malformed or names a metric the log does not have (exit 2, one line)."""
+
+
+@dataclass(frozen=True)
+class Spec:
+    """The table of one metric's expectation (read by the configuration layer, ftstab_mj.validate):
+    value, min, max a number or an array of numbers (one per element of the metric), atol and rtol
+    numbers >= 0, null = true alone."""
+
+    value: float | tuple[float, ...] | None = None
+    atol: float = field(default=0.0, metadata={"check": non_negative})
+    rtol: float = field(default=0.0, metadata={"check": non_negative})
+    min: float | tuple[float, ...] | None = None
+    max: float | tuple[float, ...] | None = None
+    null: bool | None = None
+
+
+SPEC_KEYS = tuple(f.name for f in fields(Spec))
 
 
 @dataclass(frozen=True)
@@ -62,52 +77,42 @@ def _fmt(x) -> str:
     return repr(x) if isinstance(x, str) else str(x).lower() if isinstance(x, bool) else str(x)
 
 
-def _numbers(source, path, what, x):
-    """x as a list of floats (a scalar becomes a one-element list); validates the expectation."""
-    items = x if isinstance(x, list) else [x]
-    if not items or any(number_problem(v) for v in items):
-        raise ExpectationError(source, keypath.join(path, what), "a finite number or a list of finite numbers", _fmt(x))
-    return [float(v) for v in items]
-
-
-def _check_spec(source: str, path: str, spec: dict, got) -> Outcome:
-    unknown = sorted(set(spec) - set(SPEC_KEYS))
-    if unknown:
-        raise ExpectationError(source, keypath.join(path, unknown[0]), "one of " + ", ".join(SPEC_KEYS), "an unknown key")
-    if "null" in spec:
-        if spec["null"] is not True or len(spec) > 1:
-            raise ExpectationError(source, f"{path}.null", "null = true alone", _fmt(spec))
+def _check_spec(reader: Reader, path: str, raw: dict, got) -> Outcome:
+    """The metric ``got`` against the expectation table ``raw`` at ``path`` (ExpectationError
+    through ``reader`` when the table is malformed or does not fit the metric)."""
+    spec = Spec(**reader.fields_of(Spec, raw, path))
+    if spec.null is not None:
+        if spec.null is not True or len(raw) > 1:
+            raise reader.error(keypath.join(path, "null"), "null = true alone", describe(raw))
         return Outcome(path, got is None, f"{path}: expected null, got {_fmt(got)}")
-    if not any(k in spec for k in ("value", "min", "max")):
-        raise ExpectationError(source, path, "a table with value, min or max", _fmt(spec))
-    atol = _numbers(source, path, "atol", spec.get("atol", 0.0))[0]
-    rtol = _numbers(source, path, "rtol", spec.get("rtol", 0.0))[0]
-    if atol < 0 or rtol < 0:
-        raise ExpectationError(source, path, "atol, rtol >= 0", f"atol {atol}, rtol {rtol}")
+    if spec.value is None and spec.min is None and spec.max is None:
+        raise reader.error(path, "a table with value, min or max", describe(raw))
     g = got if isinstance(got, list) else [got]
     if any(v is not None and not _is_number(v) for v in g):
-        raise ExpectationError(source, path, "a numeric metric for value/min/max", f"the metric is {_fmt(got)}")
+        raise reader.error(path, "a numeric metric for value/min/max", f"the metric is {_fmt(got)}")
     problems, wanted = [], []
     for key in ("value", "min", "max"):
-        if key not in spec:
+        if key not in raw:
             continue
-        ref = _numbers(source, path, key, spec[key])
+        ref = getattr(spec, key)
+        ref = list(ref) if isinstance(ref, tuple) else [ref]
         if len(ref) == 1 and len(g) > 1:
             ref = ref * len(g)
         if len(ref) != len(g):
             problems.append(f"{len(g)} values where {key} has {len(ref)}")
             continue
         if key == "value":
-            tol = "".join(f" {n} {v:g}" for n, v in (("atol", atol), ("rtol", rtol)) if v)
-            wanted.append(f"{_fmt(spec[key])}" + (f" ({tol.strip()})" if tol else ""))
+            tol = "".join(f" {n} {v:g}" for n, v in (("atol", spec.atol), ("rtol", spec.rtol)) if v)
+            wanted.append(f"{_fmt(raw[key])}" + (f" ({tol.strip()})" if tol else ""))
         else:
-            wanted.append(f"{key} {_fmt(spec[key])}")
+            wanted.append(f"{key} {_fmt(raw[key])}")
         for i, (x, r) in enumerate(zip(g, ref)):
             where = f"[{i}]" if len(g) > 1 else ""
+            allowed = spec.atol + spec.rtol * abs(r)
             if x is None or not math.isfinite(x):
                 problems.append(f"{where} is {_fmt(x)}".strip())
-            elif key == "value" and abs(x - r) > atol + rtol * abs(r):
-                problems.append(f"{where} off by {x - r:+.3g} (allowed {atol + rtol * abs(r):.3g})".strip())
+            elif key == "value" and abs(x - r) > allowed:
+                problems.append(f"{where} off by {x - r:+.3g} (allowed {allowed:.3g})".strip())
             elif key == "min" and x < r:
                 problems.append(f"{where} below min by {r - x:.3g}".strip())
             elif key == "max" and x > r:
@@ -123,18 +128,19 @@ def check_metrics(metrics: dict, expected: dict, source: str = "<expectations>")
     metric the log does not have.
     """
     out: list[Outcome] = []
+    reader = Reader(source, error_cls=ExpectationError)
 
     def walk(exp, got, path):
         for key, want in exp.items():
             p = keypath.join(path, key)
             if not isinstance(got, dict) or key not in got:
                 have = ", ".join(sorted(got)) if isinstance(got, dict) else "a value, not a table"
-                raise ExpectationError(source, p, f"a metric of the log ({have})", "no such metric")
+                raise reader.error(p, f"a metric of the log ({have})", "no such metric")
             value = got[key]
             if isinstance(want, dict) and isinstance(value, dict):
                 walk(want, value, p)
             elif isinstance(want, dict):
-                out.append(_check_spec(source, p, want, value))
+                out.append(_check_spec(reader, p, want, value))
             else:
                 same = (type(want) is type(value) or (_is_number(want) and _is_number(value))) and want == value
                 out.append(Outcome(p, same, f"{p}: expected {_fmt(want)}, got {_fmt(value)}"))

@@ -44,11 +44,32 @@ def test_tolerances_bounds_and_exact_values():
     ({"loops": {"a": {"settle_time": {"value": "fast"}}}}, "loops.a.settle_time.value"),
     ({"loops": {"a": {"settle_time": {"atol": 0.1}}}}, "loops.a.settle_time"),
     ({"loops": {"a": {"theorem3": {"Delta_held": {"value": 1.0}}}}}, "loops.a.theorem3.Delta_held"),
+    ({"loops": {"a": {"settle_time": {"value": 1.0, "atol": -0.1}}}}, "loops.a.settle_time.atol"),
+    ({"loops": {"a": {"settle_time": {"value": []}}}}, "loops.a.settle_time.value"),
+    ({"loops": {"a": {"final_abs_z_max": {"max": [1.0, "x"]}}}}, "loops.a.final_abs_z_max.max[1]"),
+    ({"loops": {"a": {"settle_time": {"null": False}}}}, "loops.a.settle_time.null"),
+    ({"loops": {"a": {"settle_time": {"null": True, "max": 1.0}}}}, "loops.a.settle_time.null"),
 ])
 def test_malformed_expectations_name_the_key_path(expected, where):
     with pytest.raises(ExpectationError) as exc:
         check_metrics(METRICS, expected, source="e.toml")
     assert str(exc.value).startswith(f"e.toml: {where}: expected ")
+    assert str(exc.value).count(": expected ") == 1 and ", found " in str(exc.value)  # file, key path, expected, found
+
+
+def test_an_expectation_table_is_read_by_the_configuration_layer():
+    """The same words as every input file of the testbed (ftstab_mj.validate.Reader)."""
+    cases = {
+        "tol": ({"value": 1.0, "tol": 0.1}, "e.toml: loops.a.settle_time.tol: expected one of the keys value, atol, "
+                                            "rtol, min, max, null, found unknown key 'tol'"),
+        "fast": ({"value": "fast"}, "e.toml: loops.a.settle_time.value: expected a number, found 'fast' (a string)"),
+        "nan": ({"value": float("nan")}, "e.toml: loops.a.settle_time.value: expected a finite number, found nan (a float)"),
+        "atol": ({"value": 1.0, "atol": -0.1}, "e.toml: loops.a.settle_time.atol: expected a number >= 0, found -0.1 (a float)"),
+    }
+    for name, (spec, message) in cases.items():
+        with pytest.raises(ExpectationError) as exc:
+            check_metrics(METRICS, {"loops": {"a": {"settle_time": spec}}}, source="e.toml")
+        assert str(exc.value) == message, name
 
 
 def test_check_cli_exit_codes_and_diff(tmp_path):
