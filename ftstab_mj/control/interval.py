@@ -3,8 +3,8 @@
 ``Iv(lo, hi)`` holds one interval per array element (any shape, all elements evaluated at once).
 Every operation rounds its result outward: the bounds of ``+ - * /`` (correctly rounded in IEEE
 754, error <= 1/2 ulp) are moved outward by d = |x| 2^-52 + 2^-1074 >= 1 ulp(x) (``_up``/``_dn``:
-the rounded x + d is at least the next float, and costs a multiply and two adds where
-``np.nextafter`` costs about 14 times more). ``x ** p`` (NumPy's power, measured within 1 ulp
+the rounded x + d is at least the next float; a few array operations, half the cost of
+``np.nextafter``: benchmarks/certificate_table.py --rounding). ``x ** p`` (NumPy's power, measured within 1 ulp
 against mpmath on this machine's SIMD path) is moved outward by 16 ulps relative. An exponent is
 itself an interval (``Exp``): the exponents of Hong's controller are rational functions of k that a
 float does not hold exactly. One power at the lower end serves the whole exponent interval:
