@@ -405,7 +405,8 @@ def certify(hong: HongController, samples: int = DEFAULT_SAMPLES, seed: int = DE
     """The certificate of ``hong`` (see the module docstring).
 
     samples, seed: the witness search before the B&B (seeded: deterministic). budget: CPU seconds
-    (None: until the gap is within rtol or max_boxes boxes were evaluated). progress: called as
+    (None: until the gap is within rtol or max_boxes boxes were evaluated), 90 % of it for c and
+    the rest (at least 0.1 s) for c' when c > 0 is proven. progress: called as
     progress(text) now and then.
     Simplified form: check_region on the shell region_inner <= |z|_inf <= region_radius
     (region_inner defaults to region_radius / 100).
@@ -430,13 +431,15 @@ def certify(hong: HongController, samples: int = DEFAULT_SAMPLES, seed: int = DE
             progress(f"{what}: bound {-top if what == 'c' else top:.6g} .. {-best if what == 'c' else best:.6g}"
                      f" after {n} boxes, {time.process_time() - t0:.1f} s")
     obj = _Ratio(terms, "c")
-    mc = _maximise(obj, _seed_points(obj, samples, rng), rtol, deadline, True, say, rng, max_boxes)
+    # a budget keeps a tenth for c' (Theorem 3 needs it once c > 0 is proven)
+    deadline_c = deadline if budget is None else t0 + 0.9 * budget
+    mc = _maximise(obj, _seed_points(obj, samples, rng), rtol, deadline_c, True, say, rng, max_boxes)
     c_lower, c_upper = -mc.upper, -mc.lower
     status = CERTIFIED if c_lower > 0 else NOT_CERTIFIED if c_upper <= 0 else UNDECIDED
     mp = None
     if status == CERTIFIED:  # c' only matters (Theorem 3) where the certificate holds
         objp = _Ratio(terms, "cp")
-        mp = _maximise(objp, _seed_points(objp, samples, rng), rtol, max(deadline, time.process_time() + 1.0), False,
+        mp = _maximise(objp, _seed_points(objp, samples, rng), rtol, max(deadline, time.process_time() + 0.1), False,
                        None if say is None else (lambda b, t, n: say(b, t, n, "c'")), rng, max_boxes)
     k = hong.k
     with np.errstate(all="ignore"):
