@@ -15,9 +15,9 @@ min-max over the repetitions, CPU time (user + system) of this process or of the
               bare step with the bindings' default timer is printed as well. Target <= 2.
 
 The breakdown rows say where A's time goes, each against the same B (alternated too): the child
-process that only imports what `ftstab run` imports, the one that runs 1 sample (start-up and
-every fixed cost), and in process the run without sinks or metrics, with the metrics stream, and
-with each log alone.
+process that only imports what `ftstab run` imports (and the same without rerun-sdk, which the
+sinks import lazily: it is the rest), the one that runs 1 sample (start-up and every fixed cost),
+and in process the run without sinks or metrics, with the metrics stream, and with each log alone.
 
 Child processes run with the bytecode cached, as an installed package has it (a private
 PYTHONPYCACHEPREFIX, warmed by one untimed run; this machine sets PYTHONDONTWRITEBYTECODE, which
@@ -51,7 +51,8 @@ from ftstab_mj.sim import Run, Simulation  # noqa: E402
 
 # what `ftstab run` imports on its way (cli.cmd_run, the run loop, the sinks, the metrics)
 RUN_IMPORTS = ("ftstab_mj.cli", "ftstab_mj.scenario.run", "ftstab_mj.sim", "ftstab_mj.logs", "ftstab_mj.metrics",
-               "ftstab_mj.logs.mcap_sink", "ftstab_mj.logs.rerun_sink", "rerun")
+               "ftstab_mj.logs.mcap_sink", "ftstab_mj.logs.rerun_sink", "foxglove.messages",
+               "google.protobuf.descriptor_pb2", "mcap.records", "lz4.frame", "rerun")
 
 
 def cpu_of(fn, children: bool = False) -> float:
@@ -89,7 +90,11 @@ class Case:
                                "--out", str(tmp)]
         self.plain_cmd = [py, "-c", "import mujoco; m = mujoco.MjModel.from_xml_path(%r); d = mujoco.MjData(m); "
                           "mujoco.mj_step(m, d, nstep=%d)" % (str(self.model_path), self.steps)]
-        self.imports_cmd = [py, "-c", "; ".join(f"import {m}" for m in RUN_IMPORTS)]
+        # what `ftstab run` imports, with the collector as the command has it (ftstab_mj/__main__.py)
+        self.imports_cmd = [py, "-c", "; ".join(["import gc", "gc.disable()", *(f"import {m}" for m in RUN_IMPORTS),
+                                                 "gc.freeze()"])]
+        self.imports_but_rerun_cmd = [py, "-c", "; ".join(["import gc", "gc.disable()", *(
+            f"import {m}" for m in RUN_IMPORTS if m != "rerun"), "gc.freeze()"])]
 
     def simulation(self) -> Simulation:
         s, sc = self.scenario.sim, self.scenario
@@ -164,6 +169,8 @@ def main(argv=None) -> int:
                     ("in process: run, MCAP + Rerun / bare", case.full, case.bare, "<= 2")]
             if not args.no_breakdown:
                 rows += [("  process: imports only / plain", lambda: case.child(case.imports_cmd),
+                          lambda: case.child(case.plain_cmd), ""),
+                         ("  process: imports but rerun / plain", lambda: case.child(case.imports_but_rerun_cmd),
                           lambda: case.child(case.plain_cmd), ""),
                          ("  process: 1-sample run / plain", lambda: case.child(case.one_sample_cmd),
                           lambda: case.child(case.plain_cmd), ""),
