@@ -32,10 +32,10 @@ def main() -> int:
     Python's cyclic garbage collector is kept off the start-up of ``ftstab run`` and off every
     command's exit: the imports leave ~10^5 long-lived objects (Rerun, MuJoCo, NumPy) that the
     collector would scan again and again while they are made and once more at the interpreter's
-    exit, for nothing (measured with benchmarks/run_speed.py: 0.07 s at start-up, 0.2 s at exit, of
-    a 1-sample run's 0.85 s of CPU). ``run`` is one run per process, and a run leaves the same 48
-    unreachable objects whatever its length (no cyclic garbage per batch), so it runs with the
-    collector off; the other commands (sweeps, Monte Carlo: many runs) keep it on. At the exit the
+    exit, for nothing (measured on alternated 1-sample ``ftstab run`` processes: 0.07 s at start-up,
+    0.2 s at exit, of 0.85 s of CPU). ``run`` is one run per process, and a run leaves the same 48
+    unreachable objects whatever its length (no cyclic garbage per batch; also with --foxglove and
+    batches of 33 samples), so it runs with the collector off; the other commands (sweeps, Monte Carlo: many runs) keep it on. At the exit the
     objects are frozen (gc.freeze): the operating system frees them, the collector no longer visits them.
     """
     import gc
