@@ -433,6 +433,17 @@ def _port(text: str) -> int:
     return port
 
 
+def _live_target(text: str) -> str:
+    """--live's value, checked while parsing (logs/live.rerun_target) so that a scenario name taken by
+    --live (``--live NAME`` before the scenario) or a typo is one line, before any log exists."""
+    from ftstab_mj.logs.live import rerun_target
+    try:
+        rerun_target(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(f"{exc} (write --live after the scenario name)") from None
+    return text
+
+
 def _host_port(text: str) -> tuple[str, int]:
     """[HOST:]PORT -> (host, port); HOST defaults to 127.0.0.1 (this machine only)."""
     host, _, port = text.rpartition(":")
@@ -720,7 +731,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="replace DIR/<name>.mcap/.rrd even when they are not ftstab logs (another program's "
                         "file, a symbolic link: the link is replaced, never written through)")
     view = r.add_argument_group("live view (the logs are written the same way meanwhile)")
-    view.add_argument("--live", nargs="?", const="auto", metavar="spawn|serve|URL",
+    view.add_argument("--live", nargs="?", const="auto", type=_live_target, metavar="spawn|serve|URL",
                       help="stream the run to a Rerun viewer as it happens: a native viewer when there is a "
                            "display, else `serve` (a `rerun --serve-web` server: a web viewer on --web-port, "
                            "gRPC on --grpc-port, kept after the run); or a rerun+http:// URL to stream to")

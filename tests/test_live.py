@@ -247,6 +247,23 @@ def test_a_foxglove_port_in_use_is_one_line_exit_2_and_no_log(tmp_path):
     assert not any(tmp_path.iterdir())
 
 
+@pytest.mark.parametrize("argv", [("--live", SCENARIO), (SCENARIO, "--live", "bogus")],
+                         ids=["live-before-scenario", "unknown-target"])
+def test_a_bad_live_target_is_one_line_exit_2_and_no_log(tmp_path, argv):
+    """--live NAME takes the scenario name as its target (the option's value is optional): the
+    parser refuses it in one line; a target rerun-sdk would refuse mid-way (a traceback after
+    the logs were opened, before this check) is refused the same way, and by the Python API."""
+    import ftstab_mj
+
+    done = run_cli("run", *argv, "--out", tmp_path)
+    assert done.returncode == 2 and "Traceback" not in done.stderr, done.stderr
+    assert len(done.stderr.strip().splitlines()) == 1 and "argument --live: expected spawn, serve" in done.stderr
+    assert not any(tmp_path.iterdir())
+    with pytest.raises(ValueError, match="expected spawn, serve"):
+        ftstab_mj.run(SCENARIO, out=tmp_path, live="bogus")
+    assert not any(tmp_path.iterdir())
+
+
 def test_the_python_api_streams_to_a_rerun_viewer_without_writing_a_file(tmp_path):
     """ftstab_mj.run(live=URL) with out=None: the RerunSink streams to the viewer only (no file), and
     the viewer (a `rerun --save` receiver on a free port) gets every sample the run returns."""

@@ -25,6 +25,7 @@ import numpy as np
 
 REALTIME_RATE = 30.0  # Hz of wall time at which a --realtime run hands batches on (the viewers' refresh)
 LATCHED = ("/scene", "/scenario", "/run_info", "/metrics")  # topics with one message: resent to late subscribers
+RERUN_SCHEMES = ("rerun://", "rerun+http://", "rerun+https://")  # the gRPC URLs rerun-sdk 0.41 accepts
 BACKLOG = 1 << 16  # messages buffered per client: more than a whole batch (1000 samples) and its poses
 
 
@@ -35,12 +36,16 @@ def has_display() -> bool:
 
 def rerun_target(live) -> str | None:
     """The RerunSink ``live`` value of a --live choice: None/False (no live view), True or "auto"
-    ("spawn" with a display, else "serve"), "spawn", "serve", or a rerun+http:// URL (kept)."""
+    ("spawn" with a display, else "serve"), "spawn", "serve", or a rerun+http:// URL (kept).
+    Anything else raises ValueError before a server or a log is opened (rerun-sdk would refuse it later,
+    with a log already half-written)."""
     if live is None or live is False:
         return None
     if live is True or live == "auto":
         return "spawn" if has_display() else "serve"
-    return str(live)
+    if isinstance(live, str) and (live in ("spawn", "serve") or live.startswith(RERUN_SCHEMES)):
+        return live
+    raise ValueError(f"expected spawn, serve or a rerun+http:// URL, got {live!r}")
 
 
 def realtime_batch(period: float) -> int:
