@@ -287,7 +287,7 @@ class Simulation:
         force, ctrl_steps = self._force, self._ctrl
         ctrl, qfrc = d.ctrl, d.qfrc_applied
         integrating, refresh = self.plant.integrating, self.plant.refresh_before_sample
-        step = mujoco.mj_step
+        step = self.plant.step  # mujoco.mj_step, unless the plant integrates itself (plants/base.py)
         dof, act = self._dof, self._act
         for k in range(n_samples):
             base = k * N

@@ -167,6 +167,8 @@ def unsupported(plant, laws, loops, integrator: str) -> str:
         return f"the native callback needs one forward pass per step ({' or '.join(INTEGRATORS)}), not {integrator!r}"
     if len(laws) > MAXLOOPS:
         return f"the native callback handles at most {MAXLOOPS} loops"
+    if plant.step is not mujoco.mj_step:
+        return f"plant {plant.model_name!r} is stepped by its own code, not by mj_step"
     if plant.native_sensing(None) is None and not hasattr(plant, "native_chain"):
         return f"plant {plant.model_name!r} has no native sensor map"
     for L in loops:

@@ -12,6 +12,8 @@ then know it. Registered models (files in models/):
                       workspace of the bounds: q_min, q_max, qd_max, u_max, grid)
   "arm_integrating"   r = 3, the same arm, its motors integrate the control (torque rate)
   "arm3"              r = 2, loops "joint0".."joint2": three stacked hinge joints
+  "ideal_chain"       r = params.r (1..6), one loop "chain": the ideal chain z_r' = phi + gamma u,
+                      integrated exactly by the plant (plants/ideal.py: no MuJoCo mechanism has it)
 A model that is the path of an MJCF file ("robot.xml") is a user model (plants/user.py): its
 loops, joints and actuators come from params["loops"].
 

@@ -119,6 +119,11 @@ class Plant:
         calls it, so a plant is compiled only when a run (or a question about the model) needs it."""
 
     # -- hooks used by the run loop ---------------------------------------------------------------
+    # One physics step of (m, d): MuJoCo's own for every plant that is a mechanism. A plant whose
+    # dynamics MuJoCo cannot express (plants/ideal.py) overrides it; the run loop then uses the
+    # Python callback (the native one steps with mj_step in C).
+    step = staticmethod(mujoco.mj_step)
+
     def set_initial(self, m, d, q0: np.ndarray, z0: np.ndarray) -> None:
         """Put the plant at joint positions q0 (n,) and chain state z0 (n, r) (z0[:, 0] is ignored)."""
         raise NotImplementedError
