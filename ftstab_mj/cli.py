@@ -130,36 +130,90 @@ def _certificate_text(hong, cert) -> str:
 
 
 def cmd_design(args) -> int:
-    from ftstab_mj.control.design import design_max_c
+    from ftstab_mj.control.design import design
 
     if args.gain_max <= args.gain_min:
         raise UsageError(f"--gain-max: expected a value above --gain-min = {args.gain_min:g}, got {args.gain_max:g}")
-    say = None if args.json else _progress_line()
-    if say:
-        say(f"designing gains for r = {args.r}, k = {args.k:g} (objective {args.objective}) ...")
     from ftstab_mj.control.hong import validate_hong
 
     validate_hong(args.r, args.k, (1.0,) * args.r, check_hurwitz=False)  # k's range, before any work
+    z0, region = _design_states(args)
+    say = None if args.json else _progress_line()
+    if say:
+        say(f"designing gains for r = {args.r}, k = {args.k:g} (objective {args.objective}) ...")
     try:
-        gains, cert = design_max_c(args.r, args.k, gain_min=args.gain_min, gain_max=args.gain_max,
-                                   budget=args.budget)
+        found = design(args.r, args.k, args.objective, z0=z0, u_max=args.u_max, region=region,
+                       gain_min=args.gain_min, gain_max=args.gain_max, budget=args.budget)
     finally:
         _end_progress(say)
+    gains, cert = found.gains, found.certificate
     if args.json:
-        d = {"gains": list(gains), "certificate": None if cert is None else _json_safe({**cert.to_dict(), "gap": cert.gap})}
+        d = {"objective": args.objective, "gains": None if gains is None else list(gains),
+             "certificate": None if cert is None else _json_safe({**cert.to_dict(), "gap": cert.gap}),
+             "time_bound": _json_safe(found.time_bound), "u0_max": found.u0_max,
+             "u_max": args.u_max, "region": None if region is None else list(region)}
         print(json.dumps(d, indent=2, allow_nan=False))
-        return 0 if cert is not None and cert.certified else 1
+        return 0 if found.certified else 1
     from ftstab_mj.control import HongController
 
     print(f"design r = {args.r}, k = {args.k:g}, objective {args.objective}, gains in "
-          f"[{args.gain_min:g}, {args.gain_max:g}]")
-    if cert is None:
-        print("  no Hurwitz gain set found")
+          f"[{args.gain_min:g}, {args.gain_max:g}]"
+          + (f", |u0| <= {args.u_max:g} on |z_i| <= ({', '.join(f'{x:g}' for x in region)})" if region else ""))
+    if gains is None:
+        print("  no Hurwitz gain set found" + (" with |u0| <= --u-max on the region" if region else ""))
         return 1
     print(_certificate_text(HongController(args.r, args.k, gains), cert))
+    if found.time_bound is not None:
+        print(f"  T(z0) = {found.time_bound:.6g} s   (guaranteed: the largest of Theorem 1's bounds "
+              f"V1(z0)^(1-alpha) / (c_lower (1-alpha)) over the {len(z0)} initial state(s))")
+    if found.u0_max is not None:
+        print(f"  max |u0| on the region = {found.u0_max:.6g} <= {args.u_max:g}   (exact: attained at the vertex "
+              f"z = ({', '.join(f'{x:g}' for x in region)}), u0 being monotone in every z_i)")
     print("scenario snippet ([loops.<name>.controller]):")
     print(f"  k = {args.k!r}\n  gains = [{', '.join(repr(g) for g in gains)}]")
-    return 0 if cert.certified else 1
+    return 0 if found.certified else 1
+
+
+def _design_states(args):
+    """(z0 (m, r) or None, region (r,) or None) of ``design`` from --z0 / --region, checked."""
+    r = args.r
+    if args.objective == "min-time":
+        if not args.z0:
+            raise UsageError("--z0: expected at least one initial state (r comma-separated numbers) for "
+                             "--objective min-time, got none")
+        if args.k == 0:
+            raise UsageError("--k: expected k < 0 for --objective min-time (k = 0 converges exponentially, "
+                             "no finite time), got 0")
+    elif args.z0:
+        raise UsageError(f"--z0: expected only with --objective min-time, got it with {args.objective}")
+    for z in args.z0 or ():
+        if len(z) != r:
+            raise UsageError(f"--z0: expected {r} numbers (r = {r}), got {len(z)}: {','.join(f'{x:g}' for x in z)}")
+    if args.z0 and not any(any(x != 0 for x in z) for z in args.z0):
+        raise UsageError("--z0: expected a state other than 0 (T(0) = 0), got only zeros")
+    if (args.u_max is None) != (args.region is None):
+        given, missing = ("--u-max", "--region") if args.region is None else ("--region", "--u-max")
+        raise UsageError(f"{missing}: expected with {given} (|u0| <= U on the box |z_i| <= R_i), got none")
+    region = None
+    if args.region is not None:
+        if len(args.region) not in (1, r):
+            raise UsageError(f"--region: expected 1 or {r} half-widths R_i (r = {r}), got {len(args.region)}")
+        region = tuple(args.region) * (r if len(args.region) == 1 else 1)
+    return (None if not args.z0 else [list(z) for z in args.z0]), region
+
+
+def _numbers(lo, hi, what):
+    """An argparse type: comma-separated finite numbers in [lo, hi] (lo excluded when lo == 0 and
+    ``what`` says positive), with a one-line error."""
+    def parse(text):
+        try:
+            xs = tuple(float(x) for x in text.split(","))
+        except ValueError:
+            xs = None
+        if not xs or not all(lo <= x <= hi for x in xs) or (what == "positive" and not all(x > 0 for x in xs)):
+            raise argparse.ArgumentTypeError(f"expected comma-separated {what} numbers in [{lo:g}, {hi:g}], got {text!r}")
+        return xs
+    return parse
 
 
 def _region(text: str):
@@ -662,15 +716,24 @@ def build_parser() -> argparse.ArgumentParser:
                         "c_lower, c_upper, c_prime_upper, witness, status, gap, ...")
     c.set_defaults(func=cmd_certify)
 
-    dz = sub.add_parser("design", help="gains of Hong's controller with a sound certificate (max c_lower)",
+    dz = sub.add_parser("design", help="gains of Hong's controller with a sound certificate (max c_lower, min T(z0))",
                         description="Search the gains l_1..l_r in [--gain-min, --gain-max] that maximise the "
-                                    "guaranteed c_lower for (r, k): a deterministic simplex search over an estimate "
-                                    "of c, then the sound certificate of the candidates. Prints the gains, their "
-                                    "certificate and a scenario snippet. Exit 0 when certified, 1 when no candidate "
-                                    "certified, 2 on bad input.")
+                                    "guaranteed c_lower for (r, k) (max-c) or minimise the guaranteed T(z0) for the "
+                                    "--z0 states (min-time), optionally subject to |u0| <= --u-max on the box "
+                                    "--region: a deterministic simplex search over an estimate of c, then the sound "
+                                    "certificate of the candidates. Prints the gains, their certificate and a "
+                                    "scenario snippet. Exit 0 when certified, 1 when no candidate certified, 2 on "
+                                    "bad input.")
     dz.add_argument("--r", type=_number_in(1, 6, int), required=True, help="chain length r, 1..6")
     dz.add_argument("--k", type=float, required=True, help="homogeneity degree, -1/r < k <= 0")
-    dz.add_argument("--objective", choices=("max-c",), default="max-c", help="what to optimise (max-c: c_lower)")
+    dz.add_argument("--objective", choices=("max-c", "min-time"), default="max-c",
+                    help="what to optimise: max-c (c_lower) or min-time (the guaranteed T(z0) for --z0)")
+    dz.add_argument("--z0", type=_numbers(-1e6, 1e6, "finite"), action="append", metavar="Z1,...,ZR",
+                    help="min-time: an initial state (repeat for several; T is their largest bound)")
+    dz.add_argument("--u-max", type=_number_in(1e-9, 1e12), default=None, metavar="U",
+                    help="subject to |u0| <= U on the box --region (exact: u0 is monotone in every z_i)")
+    dz.add_argument("--region", type=_numbers(0.0, 1e6, "positive"), default=None, metavar="R[,R2,...]",
+                    help="with --u-max: the box |z_i| <= R_i (one R for every i, or r of them)")
     dz.add_argument("--gain-min", type=_number_in(GAIN_MIN, GAIN_MAX), default=0.1, help="smallest gain (default 0.1)")
     dz.add_argument("--gain-max", type=_number_in(GAIN_MIN, GAIN_MAX), default=100.0, help="largest gain (default 100)")
     dz.add_argument("--budget", type=_number_in(0.01, 86400.0, what=" seconds"), default=None, metavar="SECONDS",

@@ -1,11 +1,16 @@
-"""The gain designer: certified gains whose closed loop on the exact chain beats the guaranteed T(z0)."""
+"""The gain designer: certified gains whose closed loop on the exact chain beats the guaranteed T(z0);
+min-time gains with a smaller guaranteed T(z0) than the max-c ones; |u0| <= U on a box, checked
+independently at many points and at every vertex."""
+
+import itertools
+import json
 
 import numpy as np
 import pytest
 
 from conftest import run_cli
-from ftstab_mj.control import HongController, NominalLaw
-from ftstab_mj.control.design import design_max_c, nelder_mead
+from ftstab_mj.control import HongController, NominalLaw, certify
+from ftstab_mj.control.design import design, nelder_mead
 from ftstab_mj.ideal_chain import simulate_chain
 
 
@@ -18,10 +23,11 @@ def test_nelder_mead_finds_a_quadratic_minimum():
 def test_designed_gains_are_certified_and_beat_the_bound(r, k):
     """From 100 random initial states (|z_i| <= 1), nominal chain with a 1e-4 s zero-order hold:
     V1 falls below 1e-8 V1(z0) before Theorem 1's T(z0) = V1(z0)^(1-alpha) / (c_lower (1-alpha))."""
-    gains, cert = design_max_c(r, k)
+    found = design(r, k)
+    gains, cert = found.gains, found.certificate
     assert cert.status == "certified" and cert.gap < 0.01
     if r == 2:
-        assert design_max_c(r, k)[0] == gains  # deterministic
+        assert design(r, k).gains == gains  # deterministic
     h = HongController(r, k, gains)
     z0 = np.random.default_rng(11).uniform(-1.0, 1.0, size=(100, r))
     V0 = h.V1(z0)
@@ -46,10 +52,92 @@ def test_cli_design_prints_gains_and_snippet():
     (("--r", 9, "--k", -0.1), "--r"),
     (("--r", 2, "--k", -0.2, "--gain-max", "1e9"), "--gain-max"),
     (("--r", 2, "--k", -0.2, "--gain-min", "10", "--gain-max", "5"), "--gain-max"),
-    (("--r", 2, "--k", -0.2, "--objective", "min-time"), "--objective"),
+    (("--r", 2, "--k", -0.2, "--objective", "min-time"), "--z0"),
+    (("--r", 2, "--k", -0.2, "--objective", "fastest"), "--objective"),
+    (("--r", 2, "--k", 0.0, "--objective", "min-time", "--z0", "1,0"), "--k"),
+    (("--r", 2, "--k", -0.2, "--objective", "min-time", "--z0", "1,0,0"), "--z0"),
+    (("--r", 2, "--k", -0.2, "--objective", "min-time", "--z0", "0,0"), "--z0"),
+    (("--r", 2, "--k", -0.2, "--objective", "min-time", "--z0", "1,nan"), "--z0"),
+    (("--r", 2, "--k", -0.2, "--z0", "1,0"), "--z0"),
+    (("--r", 2, "--k", -0.2, "--u-max", "5"), "--region"),
+    (("--r", 2, "--k", -0.2, "--region", "1"), "--u-max"),
+    (("--r", 2, "--k", -0.2, "--u-max", "-1", "--region", "1"), "--u-max"),
+    (("--r", 2, "--k", -0.2, "--u-max", "5", "--region", "1,0"), "--region"),
+    (("--r", 2, "--k", -0.2, "--u-max", "5", "--region", "1,1,1"), "--region"),
+    (("--r", 2, "--k", -0.2, "--u-max", "5", "--region", "inf"), "--region"),
 ])
 def test_cli_design_bad_input_one_line_exit_2(args, needle):
     res = run_cli("design", *args)
     assert res.returncode == 2
     lines = res.stderr.strip().splitlines()
     assert len(lines) == 1 and needle in lines[0] and "Traceback" not in res.stderr
+
+
+def _design_json(*args):
+    res = run_cli("design", *args, "--json")
+    assert res.returncode == 0, res.stderr
+    return json.loads(res.stdout)
+
+
+def _T(r, k, gains, c_lower, z0):
+    """Theorem 1's bound, recomputed here: max_j V1(z0_j)^(1-a) / (c_lower (1-a)), a = (2+2k)/(2+k)."""
+    a = (2.0 + 2.0 * k) / (2.0 + k)
+    V0 = HongController(r, k, gains).V1(np.asarray(z0, dtype=float))
+    return float(np.max(V0 ** (1.0 - a) / (c_lower * (1.0 - a))))
+
+
+@pytest.mark.parametrize("r, k, z0", [
+    (1, -0.3, [[1.0]]),
+    (2, -0.2, [[1.0, 0.0], [0.0, 1.0]]),
+    (3, -0.1, [[1.0, 0.0, 0.0]]),
+])
+def test_cli_min_time_beats_the_max_c_gains_on_the_guaranteed_time(r, k, z0):
+    """The min-time gains are certified (status in the output and an independent certify here), their
+    guaranteed T(z0) (recomputed from c_lower) is below that of the max-c gains, and their closed loop
+    on the exact chain reaches V1 <= 1e-8 V1(z0) before it from every z0 (r = 1: V1 does not
+    depend on the gain, so both objectives give the largest gain)."""
+    z_args = [a for z in z0 for a in ("--z0", ",".join(map(str, z)))]
+    mt = _design_json("--r", r, "--k", k, "--objective", "min-time", *z_args)
+    mc = _design_json("--r", r, "--k", k)
+    assert mt["certificate"]["status"] == "certified" and mc["certificate"]["status"] == "certified"
+    g = tuple(mt["gains"])
+    cert = certify(HongController(r, k, g))
+    assert cert.certified and cert.c_lower == mt["certificate"]["c_lower"]
+    T_mt = _T(r, k, g, cert.c_lower, z0)
+    assert T_mt == pytest.approx(mt["time_bound"], rel=1e-12)
+    T_mc = _T(r, k, tuple(mc["gains"]), mc["certificate"]["c_lower"], z0)
+    if r == 1:  # V1 = z_1^2 / 2 does not depend on the gain and c grows with it: the same optimum, gain_max
+        assert mt["gains"] == mc["gains"] == [100.0]
+    else:
+        assert T_mt < T_mc, (T_mt, T_mc)
+    run = simulate_chain(NominalLaw(HongController(r, k, g)), np.array(z0), 1e-4, T_mt, native=True)
+    V0 = HongController(r, k, g).V1(np.array(z0))
+    below = run.V1 <= 1e-8 * V0
+    assert below.any(axis=0).all()
+    print(f"r = {r}: min-time T(z0) = {T_mt:.6g} s, max-c gains' T(z0) = {T_mc:.6g} s, settled by "
+          f"{float(run.t[np.argmax(below, axis=0)].max()):.4g} s")
+
+
+@pytest.mark.parametrize("r, k, u_max, region, objective", [
+    (1, -0.3, 2.0, "1.5", "max-c"),
+    (1, -0.3, 2.0, "1.5", "min-time"),
+    (2, -0.2, 5.0, "1", "max-c"),
+    (2, -0.2, 5.0, "1", "min-time"),
+    (3, -0.1, 10.0, "1,0.5,2", "max-c"),
+])
+def test_cli_u_max_holds_on_the_region(r, k, u_max, region, objective):
+    """|u0| <= U on the box: at every one of its 2^r vertices and at 100,000 random points of it
+    (Hong's u0 evaluated here, independently of the designer), the maximum being at the vertex the
+    designer reports; the gains are certified, and the bound is reached (|u0| at the vertex grows
+    with every gain, so the constraint is what stopped the search)."""
+    R = np.array([float(x) for x in region.split(",")]) * np.ones(r)
+    extra = ("--objective", "min-time", "--z0", ",".join(["1"] * r)) if objective == "min-time" else ()
+    out = _design_json("--r", r, "--k", k, "--u-max", u_max, "--region", region, *extra)
+    assert out["certificate"]["status"] == "certified"
+    h = HongController(r, k, tuple(out["gains"]))
+    vertices = np.array(list(itertools.product(*[(-x, x) for x in R])))
+    pts = np.random.default_rng(3).uniform(-R, R, size=(100_000, r))
+    u_vert, u_pts = np.abs(h.u0(vertices)), np.abs(h.u0(pts))
+    assert u_vert.max() <= u_max and u_pts.max() <= u_vert.max()
+    assert u_vert.max() == pytest.approx(out["u0_max"], rel=1e-12)
+    assert u_vert.max() > 0.99 * u_max

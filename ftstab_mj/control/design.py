@@ -3,18 +3,36 @@
 The search runs on log-gains with a deterministic Nelder-Mead simplex over a cheap estimate of
 the objective (the float witness search of the certificate: it can only over-estimate c); every
 candidate it ends on is then certified soundly (ftstab_mj.control.certificate.certify), and the
-best certified one is returned. Objectives:
+best certified one by the certified objective is returned. Objectives:
 
 * ``max-c``: maximise c_lower (for a given k, c scales with the gains: multiplying every gain by
   the same factor is not a dilation, so the search is over the whole gain vector, bounded by
   ``gain_max``);
-(A ``min-time`` objective, T(z0) for given initial states under |u0| <= u_max on a region, is not
-implemented yet.)
+* ``min-time``: minimise Theorem 1's guaranteed time bound for given initial states z0^(j),
+  T = max_j V1(z0^(j))^(1 - alpha) / (c_lower (1 - alpha)), alpha = (2 + 2k)/(2 + k) (k < 0: at
+  k = 0 there is no finite time). V1 depends on the gains too, so this is not max-c: larger gains
+  raise c and V1(z0) together. Its search starts from the max-c optimum of each start.
+
+Constraint ``u_max`` on a box region |z_i| <= R_i (either objective): |u0(z)| <= u_max on the box.
+Exact test: u0 = v_r with v_0 = 0, v_i = -l_i sig(sig(z_i, b) - sig(v_{i-1}, b), e) (b, e > 0) is
+non-increasing in every z_j (v_i decreases in z_i and increases in v_{i-1}; induction) and odd, so
+its extremes on the box are at the vertices +-R: max |u0| = -u0(R_1, ..., R_r). At that vertex every
+v_i < 0 and every argument sig(R_i, b) + |v_{i-1}|^b is a sum of positive terms: no cancellation,
+so the float value is within a few ulps per operation (relative 1e-13 for r <= 6) of the exact one;
+a candidate is feasible when the float value is <= u_max (1 - U_MARGIN). |u0| also increases with
+every gain at that vertex, so the feasible gains are those below a boundary in log-gain space
+(the searches start feasible by halving the start's gains).
 """
 
 from __future__ import annotations
 
+import math
+from dataclasses import dataclass
+
 import numpy as np
+
+OBJECTIVES = ("max-c", "min-time")
+U_MARGIN = 1e-12  # relative: covers the float error of u0 at the vertex (module docstring)
 
 
 def nelder_mead(f, x0, step=0.5, iters=300, tol=1e-7):
@@ -69,16 +87,69 @@ def _estimate_c(r, k, gains, pts, rng):
     return -float(max(np.max(f), np.max(obj.floats(z))))
 
 
-def design_max_c(r: int, k: float, gain_min=0.1, gain_max=100.0, starts=3, iters=150, budget=None, seed=0):
-    """Gains l_1..l_r maximising the certified c_lower for (r, k), searched over [gain_min, gain_max]^r.
+def _floor5(g: float) -> float:
+    """g rounded down to 5 significant digits (a printable gain; never above g, so |u0| at the
+    region's vertex, which grows with every gain, stays within u_max)."""
+    e = math.floor(math.log10(g)) - 4
+    n = math.floor(g / 10.0 ** e)
+    while float(f"{n}e{e}") > g:
+        n -= 1
+    return float(f"{n}e{e}")
 
-    Returns (gains, certificate) of the best certified candidate, or (gains, certificate) of the
-    best estimate with its (not certified / undecided) certificate when none certifies. Deterministic
-    for a given seed (the certification of the candidates has no time budget unless ``budget``).
+
+def vertex_u0(r, k, gains, region) -> float:
+    """max |u0| over the box |z_i| <= region[i]: -u0 at the vertex (region_1..region_r) (module docstring)."""
+    from ftstab_mj.control.hong import HongController
+
+    return -float(HongController(r, k, gains, check_hurwitz=False).u0(np.asarray(region, dtype=float)))
+
+
+def time_bound(cert, r, k, gains, z0) -> float:
+    """Theorem 1's guaranteed bound max_j T(z0[j]) (s) for the certificate ``cert`` of (r, k, gains);
+    z0 (m, r). Infinite when not certified or k = 0."""
+    from ftstab_mj.control.hong import HongController
+
+    V0 = HongController(r, k, gains, check_hurwitz=False).V1(np.asarray(z0, dtype=float))
+    return float(np.max(cert.time_bound(V0)))
+
+
+@dataclass(frozen=True)
+class Design:
+    """What ``design`` found. gains (r,) or None (no Hurwitz / feasible start); certificate of the
+    gains (None when there are no gains); time_bound: the guaranteed max_j T(z0[j]) (s) for
+    min-time (None otherwise); u0_max: max |u0| on the region (None without u_max)."""
+
+    gains: tuple | None
+    certificate: object
+    time_bound: float | None = None
+    u0_max: float | None = None
+
+    @property
+    def certified(self) -> bool:
+        return self.certificate is not None and self.certificate.certified
+
+
+def design(r: int, k: float, objective: str = "max-c", z0=None, u_max: float | None = None, region=None,
+           gain_min=0.1, gain_max=100.0, starts=3, iters=150, budget=None, seed=0) -> Design:
+    """Gains l_1..l_r in [gain_min, gain_max]^r for ``objective`` (module docstring) with a sound
+    certificate.
+
+    z0: (m, r) initial states (min-time only); u_max, region (r,): |u0| <= u_max on |z_i| <= region[i]
+    (both or neither). Returns the best certified candidate by the certified objective, else the
+    best estimate with its (not certified / undecided) certificate. Deterministic for a given seed
+    (the candidates' certificates have no time budget unless ``budget``, CPU s per candidate).
     """
     from ftstab_mj.control.certificate import certify
     from ftstab_mj.control.hong import HongController, is_hurwitz
 
+    if objective not in OBJECTIVES:
+        raise ValueError(f"objective: expected one of {', '.join(OBJECTIVES)}, got {objective!r}")
+    if (u_max is None) != (region is None):
+        raise ValueError("u_max and region: both or neither")
+    if objective == "min-time":
+        z0 = np.atleast_2d(np.asarray(z0, dtype=float))
+        if k >= 0 or z0.shape[-1] != r:
+            raise ValueError("min-time needs k < 0 and initial states z0 of shape (m, r)")
     rng = np.random.default_rng(seed)
     pts = []
     for face in range(r):
@@ -86,29 +157,67 @@ def design_max_c(r: int, k: float, gain_min=0.1, gain_max=100.0, starts=3, iters
         pts.append(np.insert(x, face, 1.0, axis=1))
     pts = np.concatenate(pts)
     lo, hi = np.log(gain_min), np.log(gain_max)
+    alpha = (2.0 + 2.0 * k) / (2.0 + k)
 
-    def cost(x):
-        g = tuple(float(v) for v in np.exp(np.clip(x, lo, hi)))
-        if not is_hurwitz(g):
-            return np.inf
+    def gains_of(x):
+        return tuple(float(v) for v in np.exp(np.clip(x, lo, hi)))
+
+    def feasible(g):
+        return is_hurwitz(g) and (u_max is None or vertex_u0(r, k, g, region) <= u_max * (1.0 - U_MARGIN))
+
+    def c_est(g):
         with np.errstate(all="ignore"):
             c = _estimate_c(r, k, g, pts, np.random.default_rng(seed))
-        return -c if np.isfinite(c) else np.inf
+        return c if np.isfinite(c) else -np.inf
 
-    found = []
+    def cost_max_c(x):
+        g = gains_of(x)
+        return -c_est(g) if feasible(g) else np.inf
+
+    def cost_min_time(x):
+        g = gains_of(x)
+        if not feasible(g):
+            return np.inf
+        c = c_est(g)
+        if not c > 0:  # no bound: worse than any bound, still steering towards c > 0
+            return 1e6 - c if np.isfinite(c) else np.inf
+        V0 = np.max(HongController(r, k, g, check_hurwitz=False).V1(z0))
+        return float(np.log(V0 ** (1.0 - alpha) / (c * (1.0 - alpha))))
+
+    def feasible_start(x0):
+        """x0 with every gain halved until feasible (|u0| at the vertex grows with every gain)."""
+        x = np.clip(x0, lo, hi)
+        while not feasible(gains_of(x)):
+            if np.all(x <= lo):
+                return None
+            x = np.maximum(x - np.log(2.0), lo)
+        return x
+
+    found = []  # (estimated cost, gains)
     for s in range(starts):
         ratio = 2.0 + 2.0 * s  # geometric starts: each gain `ratio` times the previous one
-        x0 = np.clip(np.log(ratio) * np.arange(r) - np.log(ratio) * (r - 1) / 3.0, lo, hi)
-        x, fx = nelder_mead(cost, x0, step=0.7, iters=iters)
-        found.append((fx, tuple(float(round(v, 4)) for v in np.exp(np.clip(x, lo, hi)))))
-    found.sort()
+        x0 = feasible_start(np.log(ratio) * np.arange(r) - np.log(ratio) * (r - 1) / 3.0)
+        if x0 is None:
+            continue
+        x, fx = nelder_mead(cost_max_c, x0, step=0.7, iters=iters)
+        if objective == "min-time":  # from the max-c optimum
+            x, fx = nelder_mead(cost_min_time, x, step=0.7, iters=iters)
+        found.append((fx, tuple(_floor5(v) for v in gains_of(x))))
+    found = sorted(set(found))
     best, fallback = None, None
     for fx, g in found:
-        if not np.isfinite(fx):
+        if not np.isfinite(fx) or not feasible(g):
             continue
         cert = certify(HongController(r, k, g), budget=budget)
-        if cert.certified and (best is None or cert.c_lower > best[1].c_lower):
-            best = (g, cert)
-        if best is None and cert.status != "certified":
-            fallback = (g, cert)
-    return best if best is not None else fallback if fallback is not None else (found[0][1], None)
+        d = Design(g, cert, time_bound(cert, r, k, g, z0) if objective == "min-time" else None,
+                   vertex_u0(r, k, g, region) if u_max is not None else None)
+        score = d.time_bound if objective == "min-time" else -cert.c_lower
+        if cert.certified and (best is None or score < best[0]):
+            best = (score, d)
+        if fallback is None and not cert.certified:
+            fallback = d
+    if best is not None:
+        return best[1]
+    if fallback is not None:
+        return fallback
+    return Design(found[0][1] if found else None, None)
