@@ -11,7 +11,9 @@ import pytest
 from conftest import run_cli
 from ftstab_mj.control import HongController, NominalLaw, certify
 from ftstab_mj.control.design import design, nelder_mead
+from ftstab_mj.certificate_cache import cached_certify
 from ftstab_mj.ideal_chain import simulate_chain
+from ftstab_mj.scenario import load_scenario, shipped_scenarios
 
 
 def test_nelder_mead_finds_a_quadratic_minimum():
@@ -39,6 +41,34 @@ def test_designed_gains_are_certified_and_beat_the_bound(r, k):
     assert np.all(run.t[first] < T), float(np.max(run.t[first] / T))
     print(f"r = {r}, k = {k}: gains {gains}, c_lower {cert.c_lower:.6g}, worst settle/T(z0) "
           f"{float(np.max(run.t[first] / T)):.3g}")
+
+
+IDEAL_CHAIN_SCENARIOS = {name: path for name, path, _ in shipped_scenarios() if name.startswith("ideal_chain_")}
+
+
+def test_the_longer_chain_scenarios_are_shipped():
+    assert {load_scenario(p).plant.params["r"] for p in IDEAL_CHAIN_SCENARIOS.values()} >= {4}
+
+
+@pytest.mark.parametrize("name", sorted(IDEAL_CHAIN_SCENARIOS))
+def test_shipped_ideal_chain_gains_beat_the_bound_from_100_random_states(name):
+    """The designed gains of an ideal-chain scenario, nominal law on the exact chain (native kernel,
+    1 ms zero-order hold), 100 states |z_i| <= 1: V1 <= 1e-8 V1(z0) from some time on, and that
+    time is below Theorem 1's T(z0) = V1(z0)^(1-alpha) / (c_lower (1-alpha)) for every state."""
+    sc = load_scenario(IDEAL_CHAIN_SCENARIOS[name])
+    (loop,) = sc.loops
+    h = loop.law(sc.plant.params["r"]).hong
+    cert = cached_certify(h.r, h.k, h.gains)
+    assert cert.certified
+    z0 = np.random.default_rng(11).uniform(-1.0, 1.0, size=(100, h.r))
+    V0 = h.V1(z0)
+    T = cert.time_bound(V0)
+    run = simulate_chain(NominalLaw(h), z0, 1e-3, float(T.min()), native=True)  # up to the shortest bound
+    above = ~(run.V1 <= 1e-8 * V0)  # (n, 100)
+    assert not above[-1].any(), "a state is not settled at the shortest of the bounds"
+    settle = run.t[len(run.t) - np.argmax(above[::-1], axis=0)]  # the sample after the last one above
+    assert np.all(settle < T)
+    print(f"{name}: settle / T(z0) <= {float(np.max(settle / T)):.3g}, T(z0) in [{T.min():.4g}, {T.max():.4g}] s")
 
 
 def test_cli_design_prints_gains_and_snippet():
