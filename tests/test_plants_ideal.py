@@ -80,9 +80,14 @@ def test_bad_parameters_name_the_key(params, needle):
         make_plant("ideal_chain", params)
 
 
-def test_integrators_other_than_euler_are_refused():
-    with pytest.raises(ParameterError, match="integrator"):
+def test_integrators_other_than_euler_are_refused(tmp_path):
+    with pytest.raises(ParameterError, match="integrator: expected one of euler for 'ideal_chain'"):
         make_plant("ideal_chain", {"r": 3}).compile(0.001, "rk4")
+    res = run_cli("run", "ideal_chain_r4", "--set", "sim.integrator=rk4", "--out", tmp_path)
+    assert res.returncode == 2 and not list(tmp_path.iterdir())
+    lines = res.stderr.strip().splitlines()
+    want = "ideal_chain_r4.toml (--set sim.integrator=rk4): sim.integrator: expected one of euler for model 'ideal_chain'"
+    assert len(lines) == 1 and want in lines[0], res.stderr
 
 
 def test_cli_bad_r_is_one_line_exit_2(tmp_path):

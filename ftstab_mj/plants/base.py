@@ -91,6 +91,7 @@ class Plant:
     dof_ids: np.ndarray | None = None  # (n,) dof of each loop's joint; None: 0..n-1
     actuator_ids: np.ndarray | None = None  # (n,) actuator of each loop; None: 0..n-1
     notes: tuple | list = ()  # lines to show the user about the model (a saturation kept, ...)
+    integrators: tuple = tuple(INTEGRATORS)  # the sim.integrator values this plant runs with
 
     def __init__(self, spec: mujoco.MjSpec):
         self._spec = spec
@@ -102,8 +103,9 @@ class Plant:
     def compile(self, physics_step: float, integrator: str = "euler", nuserdata: int = 0):
         """(MjModel, MjData, MJCF text) for this physics step and integrator, with ``nuserdata``
         userdata slots (the controllers' state); the plant's parameters are unchanged."""
-        if integrator not in INTEGRATORS:
-            raise ParameterError("integrator", "one of " + ", ".join(INTEGRATORS), integrator)
+        if integrator not in self.integrators:
+            raise ParameterError("integrator", "one of " + ", ".join(self.integrators)
+                                 + ("" if self.integrators == tuple(INTEGRATORS) else f" for {self.model_name!r}"), integrator)
         spec = self._spec.copy()
         spec.option.timestep = float(physics_step)
         spec.option.integrator = INTEGRATORS[integrator]

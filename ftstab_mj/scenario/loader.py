@@ -221,6 +221,9 @@ def _check_plant(sc: Scenario, rd: _Reader):
     except ValueError as exc:  # MuJoCo's compiler refused the model these parameters make
         raise rd.error("plant", "parameters MuJoCo can compile a model from",
                        f"MuJoCo: {str(exc).removeprefix('Error: ').splitlines()[0]}") from None
+    if sc.sim.integrator not in plant.integrators:
+        raise rd.error("sim.integrator", f"one of {', '.join(plant.integrators)} for model {sc.plant.model!r}",
+                       describe(sc.sim.integrator))
     names = [lp.name for lp in sc.loops]
     if sorted(names) != sorted(plant.loop_names):
         raise rd.error("loops", f"one table per loop of model {sc.plant.model!r}: "
