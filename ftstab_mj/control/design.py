@@ -1,9 +1,13 @@
 """Gain design for Hong's controller: gains with a sound certificate (ftstab design).
 
 The search runs on log-gains with a deterministic Nelder-Mead simplex over a cheap estimate of
-the objective (the float witness search of the certificate: it can only over-estimate c); every
-candidate it ends on is then certified soundly (ftstab_mj.control.certificate.certify), and the
-best certified one by the certified objective is returned. Objectives:
+the objective (the float ratio at fixed states of the certificate's faces, improved by a short
+climb: it can only over-estimate c). When the certificate's witness search (no branch and bound)
+refutes the gains a search ends on (a state with dV1/dt >= 0, common for r >= 5 where the fixed
+states are sparse), that state joins the fixed ones and the search goes on from there, up to
+REFUTE_ROUNDS times. Every candidate is then certified soundly
+(ftstab_mj.control.certificate.certify), and the best certified one by the certified objective is
+returned. Objectives:
 
 * ``max-c``: maximise c_lower (for a given k, c scales with the gains: multiplying every gain by
   the same factor is not a dilation, so the search is over the whole gain vector, bounded by
@@ -32,6 +36,7 @@ from dataclasses import dataclass
 import numpy as np
 
 OBJECTIVES = ("max-c", "min-time")
+REFUTE_ROUNDS = 8  # searches per start, each after adding the state where the last result failed
 U_MARGIN = 1e-12  # relative: covers the float error of u0 at the vertex (module docstring)
 
 
@@ -141,6 +146,7 @@ def design(r: int, k: float, objective: str = "max-c", z0=None, u_max: float | N
     """
     from ftstab_mj.control.certificate import certify
     from ftstab_mj.control.hong import HongController, is_hurwitz
+    from ftstab_mj.control.hong_terms import Terms
 
     if objective not in OBJECTIVES:
         raise ValueError(f"objective: expected one of {', '.join(OBJECTIVES)}, got {objective!r}")
@@ -199,7 +205,17 @@ def design(r: int, k: float, objective: str = "max-c", z0=None, u_max: float | N
         x0 = feasible_start(np.log(ratio) * np.arange(r) - np.log(ratio) * (r - 1) / 3.0)
         if x0 is None:
             continue
-        x, fx = nelder_mead(cost_max_c, x0, step=0.7, iters=iters)
+        x = x0
+        for _ in range(REFUTE_ROUNDS):  # search, then add the state that refutes the result (if any) and again
+            x, fx = nelder_mead(cost_max_c, x, step=0.7, iters=iters)
+            g = gains_of(x)
+            if not np.isfinite(fx) or not is_hurwitz(g):
+                break
+            quick = certify(HongController(r, k, g), budget=0.01)  # the witness search only
+            if quick.status != "not certified":
+                break
+            z = np.array([quick.witness])
+            pts = np.concatenate([pts, Terms(r, k, g).s_of(z)])
         if objective == "min-time":  # from the max-c optimum
             x, fx = nelder_mead(cost_min_time, x, step=0.7, iters=iters)
         found.append((fx, tuple(_floor5(v) for v in gains_of(x))))
