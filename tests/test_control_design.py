@@ -123,7 +123,8 @@ def _T(r, k, gains, c_lower, z0):
 ])
 def test_cli_min_time_beats_the_max_c_gains_on_the_guaranteed_time(r, k, z0):
     """The min-time gains are certified (status in the output and an independent certify here), their
-    guaranteed T(z0) (recomputed from c_lower) is below that of the max-c gains, and their closed loop
+    guaranteed T(z0) (recomputed from c_lower) is not above that of the max-c gains (0.6 % below at
+    r = 2; r = 3 from (1, 0, 0): 10.40606 s against 10.40650 s), and their closed loop
     on the exact chain reaches V1 <= 1e-8 V1(z0) before it from every z0 (r = 1: V1 does not
     depend on the gain, so both objectives give the largest gain)."""
     z_args = [a for z in z0 for a in ("--z0", ",".join(map(str, z)))]
@@ -136,10 +137,11 @@ def test_cli_min_time_beats_the_max_c_gains_on_the_guaranteed_time(r, k, z0):
     T_mt = _T(r, k, g, cert.c_lower, z0)
     assert T_mt == pytest.approx(mt["time_bound"], rel=1e-12)
     T_mc = _T(r, k, tuple(mc["gains"]), mc["certificate"]["c_lower"], z0)
+    assert T_mt <= T_mc, (T_mt, T_mc)  # the max-c optima are among min-time's candidates
     if r == 1:  # V1 = z_1^2 / 2 does not depend on the gain and c grows with it: the same optimum, gain_max
         assert mt["gains"] == mc["gains"] == [100.0]
-    else:
-        assert T_mt < T_mc, (T_mt, T_mc)
+    if r == 2:  # measured: 1.4396 s against 1.4483 s
+        assert T_mt < 0.995 * T_mc, (T_mt, T_mc)
     run = simulate_chain(NominalLaw(HongController(r, k, g)), np.array(z0), 1e-4, T_mt, native=True)
     V0 = HongController(r, k, g).V1(np.array(z0))
     below = run.V1 <= 1e-8 * V0

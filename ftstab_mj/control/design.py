@@ -15,7 +15,8 @@ returned. Objectives:
 * ``min-time``: minimise Theorem 1's guaranteed time bound for given initial states z0^(j),
   T = max_j V1(z0^(j))^(1 - alpha) / (c_lower (1 - alpha)), alpha = (2 + 2k)/(2 + k) (k < 0: at
   k = 0 there is no finite time). V1 depends on the gains too, so this is not max-c: larger gains
-  raise c and V1(z0) together. Its search starts from the max-c optimum of each start.
+  raise c and V1(z0) together. Its search starts from the max-c optimum of each start, and those
+  optima stay candidates, so its certified T is never above that of the max-c gains.
 
 Constraint ``u_max`` on a box region |z_i| <= R_i (either objective): |u0(z)| <= u_max on the box.
 Exact test: u0 = v_r with v_0 = 0, v_i = -l_i sig(sig(z_i, b) - sig(v_{i-1}, b), e) (b, e > 0) is
@@ -216,7 +217,8 @@ def design(r: int, k: float, objective: str = "max-c", z0=None, u_max: float | N
                 break
             z = np.array([quick.witness])
             pts = np.concatenate([pts, Terms(r, k, g).s_of(z)])
-        if objective == "min-time":  # from the max-c optimum
+        if objective == "min-time":  # from the max-c optimum, which stays a candidate: the estimate of T
+            found.append((cost_min_time(x), tuple(_floor5(v) for v in gains_of(x))))  # can mislead the search
             x, fx = nelder_mead(cost_min_time, x, step=0.7, iters=iters)
         found.append((fx, tuple(_floor5(v) for v in gains_of(x))))
     found = sorted(set(found))
