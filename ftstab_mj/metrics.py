@@ -165,6 +165,33 @@ def time_bound(loop, V1_0):
     return _num(cert.time_bound(V1_0))
 
 
+ENVELOPE_POINTS = 400  # samples of the drawn envelope (a smooth curve on a log axis)
+
+
+def envelope(cert, V1_0: float, duration: float, n: int = ENVELOPE_POINTS):
+    """Theorem 1's envelope from V1(0) = V1_0: (t (m,), V1 bound (m,)) on [0, min(T, duration)],
+    and T(z0) (s, inf when the certificate gives none). From dV1/dt <= -c V1^alpha the comparison
+    lemma gives V1(t) <= (V1_0^(1-alpha) - c (1-alpha) t)^(1/(1-alpha)) until T(z0) =
+    V1_0^(1-alpha) / (c (1-alpha)) (chain units). What it guarantees: :func:`envelope_kind`."""
+    T = float(cert.time_bound(V1_0)) if cert is not None and cert.certified else math.inf
+    if not math.isfinite(T) or not V1_0 > 0:
+        return np.empty(0), np.empty(0), T
+    a, c = cert.alpha, cert.c
+    t = np.linspace(0.0, min(T, duration), n)
+    inner = np.maximum(V1_0 ** (1.0 - a) - c * (1.0 - a) * t, 0.0)
+    return t, inner ** (1.0 / (1.0 - a)), T
+
+
+def envelope_kind(m: dict) -> str:
+    """What Theorem 1's envelope is for a loop whose metrics are ``m``: a continuous-time guarantee
+    only where ``m["bound_applies"]`` (the sampled loop settles into an O(h) band, so its V1 may
+    cross the envelope once that small); else "not a guarantee" and why."""
+    if m.get("bound_applies"):
+        return "continuous-time guarantee"
+    reason = m.get("workspace_left") or m.get("bound_applies_reason")
+    return f"not a guarantee: {reason}" if reason else "not a guarantee: the true bounds exceed the assumed ones"
+
+
 def final_abs_max(z_final):
     """Final accuracy per state component: max |z_i| over the final window, list of r (chain units)."""
     return [_num(np.max(np.abs(z_final[:, i]))) for i in range(z_final.shape[1])]

@@ -131,16 +131,9 @@ def _varies(a: np.ndarray) -> bool:
     return len(a) > 1 and bool(np.ptp(a) > 0)
 
 
-def _why_not(m: dict) -> str:
-    """Why Theorem 1's envelope is not a guarantee for a loop's metrics ``m``."""
-    reason = m.get("workspace_left") or m.get("bound_applies_reason")
-    return f"not a guarantee: {reason}" if reason else "not a guarantee: the true bounds exceed the assumed ones"
-
-
 def _v1_panel(lp, m: dict, a: dict, t: np.ndarray, settle_level: float) -> Panel | None:
     """log V1 with the settle level, Theorem 1's envelope and T(z0), or Theorem 3's Delta and eps."""
-    from ftstab_mj.logs.rerun_sink import envelope
-    from ftstab_mj.metrics import loop_certificate
+    from ftstab_mj.metrics import envelope, envelope_kind, loop_certificate
 
     V1 = a["V1"]
     if not np.isfinite(V1).any():
@@ -150,7 +143,7 @@ def _v1_panel(lp, m: dict, a: dict, t: np.ndarray, settle_level: float) -> Panel
               Curve(f"settle level {settle_level:g}", np.empty(0), np.array([settle_level]), "hline", ":", "0.4")]
     if lp.law in ("nominal", "robust") and m.get("time_bound") is not None:
         et, bound, T = envelope(loop_certificate(lp), float(V1[0]), t_end - t0)
-        kind = "continuous-time guarantee" if m["bound_applies"] else _why_not(m)
+        kind = envelope_kind(m)
         after = "" if t0 + T <= t_end else ", after the end of the run"
         curves.append(Curve(f"Theorem 1 envelope ({kind})", t0 + et, bound, style="--", color="C4"))
         curves.append(Curve(f"T(z0) = {T:.4g} s{after}", np.array([t0 + T]), np.empty(0), "vline", "-.", "C3"))

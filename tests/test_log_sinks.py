@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 
+from ftstab_mj.disturbances import Signal
 from ftstab_mj.errors import LogError
 from ftstab_mj.logs import McapSink, RerunSink
 from ftstab_mj.metrics import compute_metrics
@@ -338,3 +339,30 @@ def test_rerun_plots_stage_fields_beside_the_true_ones(tmp_path):
     assert control["SeriesLines:names"][0] == ["u", "u0", "u_applied"]
     assert np.array_equal(np.array(control["Scalars:scalars"]), np.column_stack([a["u"], a["u0"], a["u_applied"]]))
     assert len(set(z["SeriesLines:colors"][0])) == 6
+
+
+def _envelope_names(path):
+    """The last name given to the cart's envelope series and the T(z0) note (static: the viewer shows the last)."""
+    rows, cols = _rrd(path)
+    return cols["/loop/cart/V1/envelope"]["SeriesLines:names"][-1][0], cols["/loop/cart/V1/T_z0/note"]["TextDocument:text"][-1][0]
+
+
+def test_rerun_names_the_envelope_what_the_report_calls_it(robust_rrd, tmp_path):
+    """The envelope's series name and the T(z0) note say "continuous-time guarantee" only where the
+    metrics say bound_applies (the report's words, metrics.envelope_kind); a robust law whose
+    assumed phibar (0.2) is below the true disturbance (0.5) gets "not a guarantee" and why."""
+    from ftstab_mj.metrics import envelope_kind
+
+    path, info, loops, pos, metrics = robust_rrd
+    series, note = _envelope_names(path)
+    assert metrics["loops"]["cart"]["bound_applies"]
+    assert series == "log10 Theorem 1 envelope (continuous-time guarantee)" and note.endswith(" s (continuous-time guarantee)")
+    info, loops, pos, quat = synthetic_run("robust", params={"phibar": 0.2, "gamma_m": 0.8}, duration=2.0,
+                                           phi=Signal("constant", 0.5))
+    metrics = compute_metrics(info, loops, COMPLETED)
+    assert not metrics["loops"]["cart"]["bound_applies"]
+    write_run(RerunSink(tmp_path / "exceeded.rrd"), info, loops, pos, quat, COMPLETED, metrics, batch=600)
+    series, note = _envelope_names(tmp_path / "exceeded.rrd")
+    kind = envelope_kind(metrics["loops"]["cart"])
+    assert kind == "not a guarantee: the true bounds exceed the assumed ones"
+    assert series == f"log10 Theorem 1 envelope ({kind})" and note.endswith(f" s ({kind})")

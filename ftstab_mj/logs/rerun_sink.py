@@ -14,8 +14,10 @@ Entities (one multi-series entity per plot: one ``send_columns`` per plot and ba
   ``/loop/<name>/V1/settle_level`` (log10 of the metrics' settle level) and, where Theorem 1 gives
   a bound (certificate c > 0, nominal or robust law), ``/loop/<name>/V1/envelope``: the comparison
   lemma's V1(t) <= (V1(0)^(1-alpha) - c (1-alpha) t)^(1/(1-alpha)) until T(z0) =
-  V1(0)^(1-alpha) / (c (1-alpha)), marked by the point ``/loop/<name>/V1/T_z0``. The envelope is a
-  guarantee only when the metrics say ``bound_applies`` (true bounds within the assumed ones).
+  V1(0)^(1-alpha) / (c (1-alpha)) (metrics.envelope), marked by the point ``/loop/<name>/V1/T_z0``.
+  Its series name says what it is, in the report's words (metrics.envelope_kind): a
+  "continuous-time guarantee" only where the metrics say ``bound_applies``, else "not a
+  guarantee" and why; named from the loop's description at the start, from the metrics at close.
 - ``/loop/<name>/adaptation``: phi_hat, gamma_hat against the true phi, gamma (chain units).
 - ``/loop/<name>/other``: any other per-sample field the loop carries (one series per value;
   dV1/dz_r, and what observers or actuators add), in its own plot.
@@ -37,12 +39,12 @@ import numpy as np
 from ftstab_mj.errors import LogWriteError
 from ftstab_mj.logs.files import Pump, can_pump, create_log, discard, write_errors
 from ftstab_mj.logs.scene import PLANE_HALF_THICKNESS, model_shapes, quat_rotate
+from ftstab_mj.metrics import bound_applies, envelope, envelope_kind, loop_certificate, stage_reasons
 from ftstab_mj.records import RunInfo, SampleBatch, format_table
 
 TIMELINE = "sim_time"
 WHAT = "Rerun recording"
 APPLICATION_ID = "ftstab"
-ENVELOPE_POINTS = 400
 
 # Per plot, the series and their colours (RGB), chosen so that no two series of one plot collide.
 PALETTE = [(31, 119, 180), (255, 127, 14), (44, 160, 44), (214, 39, 40), (148, 103, 189), (140, 86, 75),
@@ -144,18 +146,6 @@ def log_shapes(rec, info: RunInfo) -> None:
         rec.log(path, arch, static=True)
 
 
-def envelope(cert, V1_0: float, duration: float, n: int = ENVELOPE_POINTS):
-    """Theorem 1's envelope from V1(0) = V1_0: (t (m,), V1 bound (m,)) on [0, min(T, duration)],
-    and T(z0) (s, inf when the certificate gives none). From dV1/dt <= -c V1^alpha (comparison lemma)."""
-    T = float(cert.time_bound(V1_0)) if cert is not None and cert.certified else math.inf
-    if not math.isfinite(T) or not V1_0 > 0:
-        return np.empty(0), np.empty(0), T
-    a, c = cert.alpha, cert.c
-    t = np.linspace(0.0, min(T, duration), n)
-    inner = np.maximum(V1_0 ** (1.0 - a) - c * (1.0 - a) * t, 0.0)
-    return t, inner ** (1.0 / (1.0 - a)), T
-
-
 def _labels(field: str, a) -> list[str]:
     """Series names of one field: itself for (n,), field1..fieldw for (n, w) (z -> z1, z2)."""
     w = int(np.prod(np.shape(a)[1:], dtype=int))
@@ -189,6 +179,8 @@ class RerunSink:
         self.live, self.web_port, self.grpc_port = live, web_port, grpc_port
         self.force = force
         self.closed_status = None  # the status the recording was closed with (None: not closed whole)
+        self._kinds: dict[str, str] = {}  # loop -> what its envelope is (metrics.envelope_kind)
+        self._time_bounds: dict[str, float] = {}  # loop -> T(z0) (s), where finite
         self._rec = None
         self._pump = None
 
@@ -227,13 +219,32 @@ class RerunSink:
         import rerun as rr
 
         rec, base = self._rec, f"/loop/{lp.name}"
-        for name in ("log10_V1", "settle_level", "envelope"):
-            label = {"log10_V1": "log10 V1", "settle_level": "log10 settle level",
-                     "envelope": "log10 Theorem 1 envelope"}[name]
+        for name, label in (("log10_V1", "log10 V1"), ("settle_level", "log10 settle level")):
             rec.log(f"{base}/V1/{name}", rr.SeriesLines(names=label, colors=V1_COLOURS[name],
                                                         aggregation_policy="MinMax"), static=True)
         rec.log(f"{base}/V1/T_z0", rr.SeriesPoints(names="T(z0)", colors=V1_COLOURS["T_z0"], markers="Cross",
                                                    marker_sizes=8.0), static=True)
+        # until the metrics say (at close): what the loop's description alone says, the workspace unknown
+        reasons = stage_reasons(getattr(lp, "stages", None))
+        self._label_envelope(lp, {"bound_applies": bound_applies(lp) and not reasons,
+                                  "bound_applies_reason": "; ".join(reasons) or None}, final=False)
+
+    def _label_envelope(self, lp, m: dict, final: bool) -> None:
+        """Name loop ``lp``'s envelope series and T(z0) note with what they are for metrics ``m``
+        (metrics.envelope_kind, the report's words); static: the close's (final) name replaces the open's."""
+        import rerun as rr
+
+        kind = envelope_kind(m)
+        if not final and m["bound_applies"]:
+            kind += " if the run stays in its workspace"
+        self._kinds[lp.name] = kind
+        base = f"/loop/{lp.name}/V1"
+        self._rec.log(f"{base}/envelope", rr.SeriesLines(names=f"log10 Theorem 1 envelope ({kind})",
+                                                         colors=V1_COLOURS["envelope"], aggregation_policy="MinMax"),
+                      static=True)
+        if lp.name in self._time_bounds:
+            self._rec.log(f"{base}/T_z0/note", rr.TextDocument(f"T(z0) = {self._time_bounds[lp.name]:.4g} s ({kind})"),
+                          static=True)
 
     def _attach(self, body_pos, loops=None) -> None:
         """Send the recording to its sinks, with the blueprint (camera from ``body_pos``; a plot of
@@ -288,8 +299,6 @@ class RerunSink:
         """Settle level and Theorem 1's envelope for loop ``lp`` from its first V1 (V1_0)."""
         import rerun as rr
 
-        from ftstab_mj.metrics import bound_applies, loop_certificate
-
         base, rec = f"/loop/{lp.name}", self._rec
         duration = float(self._info.scenario.get("sim", {}).get("duration", 0.0) or 0.0) if isinstance(
             self._info.scenario.get("sim"), dict) else 0.0
@@ -307,8 +316,8 @@ class RerunSink:
         if math.isfinite(T):
             rec.send_columns(f"{base}/V1/T_z0", indexes=[rr.TimeColumn(TIMELINE, duration=[T])],
                              columns=rr.Scalars.columns(scalars=[math.log10(level)]))
-            note = "" if bound_applies(lp) else " (the true bounds exceed the assumed ones: not a guarantee)"
-            rec.log(f"{base}/V1/T_z0/note", rr.TextDocument(f"T(z0) = {T:.4g} s{note}"), static=True)
+            self._time_bounds[lp.name] = T
+            rec.log(f"{base}/V1/T_z0/note", rr.TextDocument(f"T(z0) = {T:.4g} s ({self._kinds[lp.name]})"), static=True)
 
     @write_errors(WHAT)
     def write(self, batch: SampleBatch) -> None:
@@ -365,6 +374,9 @@ class RerunSink:
         text = f"status: {status}\n" + (f"message: {message}\n" if message else "")
         if metrics:  # a failed run is closed without metrics
             text += "\n" + format_table(metrics)
+            for lp in self._info.loops:  # the envelope's name from the run's own metrics (the workspace known)
+                if lp.name in metrics["loops"]:
+                    self._label_envelope(lp, metrics["loops"][lp.name], final=True)
         self._rec.log("/run/status", rr.TextDocument(text, media_type="text/plain"), static=True)
         self._flush()
         pump = self._pump
