@@ -6,7 +6,7 @@ Metrics are computed from the same arrays (live) or from the arrays read back fr
 so both give the same numbers.
 
 Per control loop, one sample per control period with the fields of :data:`LOOP_FIELDS`
-(DESIGN.md "User-facing contracts"): ``z`` has shape (n, r), every other field (n,).
+(a user-facing contract: the README's "Logs" section): ``z`` has shape (n, r), every other field (n,).
 """
 
 from __future__ import annotations

@@ -2,6 +2,7 @@
 
 import re
 import shlex
+import subprocess
 from pathlib import Path
 
 from conftest import ROOT, run_cli
@@ -40,3 +41,13 @@ def test_quick_start_run_command_runs_the_default_scenario(tmp_path):
     assert name == "cart_r2_robust"  # the default scenario
     assert f"{name}: " in proc.stdout and "status completed" in proc.stdout
     assert (tmp_path / out / f"{name}.mcap").stat().st_size > 0 and (tmp_path / out / f"{name}.rrd").stat().st_size > 0
+
+
+def test_no_tracked_file_sends_users_to_the_teams_private_notes():
+    """Users never see the team's shared folder: no tracked file names it or its notes (the
+    formulas a module implements are restated in the project's own docs)."""
+    names = [".." + "/shared", *(stem + ".md" for stem in ("NOTES", "DESIGN", "LITERATURE"))]  # not literal here
+    tracked = subprocess.run(["git", "ls-files", "-z"], cwd=ROOT, capture_output=True, check=True).stdout.split(b"\0")
+    found = [(path.decode(), name) for path in tracked if path and (ROOT / path.decode()).is_file()
+             for name in names if name.encode() in (ROOT / path.decode()).read_bytes()]
+    assert found == []

@@ -1,6 +1,6 @@
 """MCAP log of a run, readable by Foxglove, by Rerun's MCAP loader and by the plain ``mcap`` reader.
 
-Topics (DESIGN.md "User-facing contracts"):
+Topics (a user-facing contract, listed in the README's "Logs" section):
 
 - ``/loop/<name>``: one protobuf message ``ftstab.LoopSample`` per control sample, with the fields
   the run hands over (records.LOOP_FIELDS: t (s), z (r values), u, u0, V1, dV1_dzr, phi_hat,
