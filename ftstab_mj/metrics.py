@@ -1,8 +1,9 @@
 """Metrics of a run, computed from the logged arrays only (same code live and on replay).
 
-A run streams them (:class:`MetricsStream`: each batch reduced as it comes, only the final window's
-samples kept); a replay hands the log's arrays in one batch (:func:`compute_metrics`). Both give the
-same bits whatever the batching (the effort sums are block sums, _BlockSum).
+A run streams them (:class:`MetricsStream`: each batch reduced as it comes, only the samples the
+final window may need kept, in a temporary file once they pass 1 MiB); a replay hands the log's arrays
+the same way (:func:`compute_metrics`). Both give the same bits whatever the batching (the effort sums are block sums,
+_BlockSum).
 
 :func:`compute_metrics` maps a :class:`~ftstab_mj.records.RunInfo`, the samples of every loop
 ({loop name: {field: array}}, fields of ``records.LOOP_FIELDS``, and ``STAGE_FIELDS`` for a loop
@@ -21,6 +22,7 @@ them: non-finite entries count as NaN, so a live run and its replay give identic
 
 from __future__ import annotations
 
+import bisect
 import math
 import warnings
 
@@ -202,7 +204,8 @@ def chattering(u_final, period):
 
     Units: u units per second; m the number of samples of the window. 0 for a one-sample window.
     """
-    return _num(np.sum(np.abs(np.diff(u_final))) / (len(u_final) * period))
+    d = np.diff(u_final)
+    return _num(np.sum(np.abs(d, out=d)) / (len(u_final) * period))  # (in place: one array of the window's size)
 
 
 def du_dt_variance(u_final, period):
@@ -212,7 +215,12 @@ def du_dt_variance(u_final, period):
     """
     if len(u_final) < 2:
         return 0.0
-    return _num(np.var(np.diff(u_final) / period))
+    d = np.diff(u_final)
+    d /= period
+    # np.var(d) with its own steps (mean = sum / m, then the sum of squared deviations / m), in place
+    d -= np.sum(d) / len(d)
+    d *= d
+    return _num(np.sum(d) / len(d))
 
 
 def zero_crossing_rate(u_final, period):
@@ -221,9 +229,14 @@ def zero_crossing_rate(u_final, period):
     A sign change is counted between consecutive non-zero samples of opposite sign (exact zeros are
     skipped, so 1, 0, -1 is one change). Over m samples of period h the rate is changes / (m h).
     """
-    s = np.sign(u_final[np.isfinite(u_final)])
-    s = s[s != 0]
-    return _num(np.count_nonzero(s[1:] != s[:-1]) / (len(u_final) * period))
+    changes, before = 0, 0.0  # counted in blocks (the sign of the last non-zero sample carried over)
+    for i in range(0, len(u_final), 1 << 16):
+        s = np.sign(u_final[i:i + (1 << 16)])
+        s = s[np.isfinite(s) & (s != 0)]
+        if s.size:
+            changes += int(np.count_nonzero(s[1:] != s[:-1])) + int(before != 0.0 and s[0] != before)
+            before = s[-1]
+    return _num(changes / (len(u_final) * period))
 
 
 def band_rms(u_final, period, band):
@@ -238,12 +251,15 @@ def band_rms(u_final, period, band):
     if m < 2:
         return 0.0
     U = np.fft.rfft(u_final)
-    f = np.fft.rfftfreq(m, period)
-    amp2 = (2.0 * np.abs(U) / m) ** 2 / 2.0
-    if m % 2 == 0:
+    # the bins in the band, j0..j1, with f_j = j / (m h) computed as np.fft.rfftfreq does (j * (1 / (m h))):
+    # only they are squared and summed, so a long window costs its spectrum U and no more
+    val, last = 1.0 / (m * period), len(U) - 1
+    j0 = max(1, bisect.bisect_left(range(len(U)), band[0], key=lambda j: j * val))  # f > 0, f >= low
+    j1 = bisect.bisect_right(range(len(U)), band[1], key=lambda j: j * val) - 1  # f <= high
+    amp2 = (2.0 * np.abs(U[j0:j1 + 1]) / m) ** 2 / 2.0
+    if m % 2 == 0 and j0 <= last == j1:
         amp2[-1] = (np.abs(U[-1]) / m) ** 2  # the Nyquist bin has no mirror image
-    sel = (f > 0.0) & (f >= band[0]) & (f <= band[1])
-    return _num(np.sqrt(np.sum(amp2[sel])))
+    return _num(np.sqrt(np.sum(amp2)))
 
 
 def effort(u, period):
@@ -302,8 +318,9 @@ def _workspace_text(loop, ext) -> str | None:
     return "; ".join(out)
 
 
-def theorem3_check(loop, V1_final, phi_hat_final):
-    """Theorem 3's bounds (true phibar, gamma_m) and whether the final window respects them.
+def theorem3_check(loop, v_max, ph_max, v_min):
+    """Theorem 3's bounds (true phibar, gamma_m) and whether the final window respects them, from
+    the window's max V1 (v_max), max phi_hat (ph_max) and min V1 (v_min).
 
     Delta: limsup V1 <= Delta, checked as max V1 over the final window <= Delta;
     phi_hat_limsup: checked as max phi_hat over the final window <= it; eps_reached: min V1 over
@@ -318,7 +335,7 @@ def theorem3_check(loop, V1_final, phi_hat_final):
         return None  # (an unbounded plant, e.g. a damped cart, gives Theorem 3 nothing to check)
     p = loop.law_params
     b = theorem3_bounds(cert, loop.true_phibar, loop.true_gamma_m, p["kappa"], p["delta"], p["rate"], p["eps"])
-    v_max, ph_max, v_min = float(np.max(V1_final)), float(np.max(phi_hat_final)), float(np.min(V1_final))
+    v_max, ph_max, v_min = float(v_max), float(ph_max), float(v_min)
     return {
         "Phibar": _num(b.Phibar), "Delta": _num(b.Delta), "phi_hat_limsup": _num(b.phi_hat_limsup),
         "V1_max_final": _num(v_max), "Delta_held": bool(v_max <= b.Delta),
@@ -335,10 +352,6 @@ def _finite_or_nan(a):
 
 
 # -- streaming: the metrics of a run as its batches arrive ------------------------------------------
-
-# the fields the final-window metrics read (kept for the window only); the others are reduced as they come
-_WINDOW_FIELDS = ("t", "z", "u", "V1", "phi_hat", "z_hat", "u_applied")
-
 
 class _SettleTracker:
     """:func:`settle_time` on a stream: the last sample above the level and the time of the one after."""
@@ -391,11 +404,155 @@ def _nan_max(acc, x):
     return x if acc is None else np.maximum(acc, x)
 
 
+def _nan_min(acc, x):
+    """Running min, NaN propagated as by np.min of the whole array (None: nothing yet)."""
+    return x if acc is None else np.minimum(acc, x)
+
+
+class _AxisSum:
+    """np.sum(x, axis=0) of a stream of (m, r) blocks with the whole array's bits: numpy adds the rows
+    of a C-ordered (m, r >= 2) array one after the other (so the running sum is continued row by row);
+    an (m, 1) one it sums pairwise as a column (then _BlockSum: exact up to BLOCK rows, rounding beyond)."""
+
+    def __init__(self, r: int):
+        self.column = _BlockSum() if r == 1 else None
+        self.acc = None
+
+    def update(self, x) -> None:
+        if self.column is not None:
+            self.column.update(x[:, 0])
+        else:
+            self.acc = np.add.reduce(x if self.acc is None else np.vstack([self.acc, x]), axis=0)
+
+    def result(self) -> np.ndarray:
+        return np.array([self.column.result()]) if self.column is not None else self.acc
+
+
+class _Ring:
+    """The last ``capacity`` rows (float64, ``width`` columns) of a stream: what the final window may
+    need. Up to RING_IN_MEMORY bytes they stay in memory; beyond, in an unlinked temporary file (the
+    default temporary directory), so that the page cache holds them rather than the process and a run's
+    memory does not grow with its length. capacity None: every row, in memory."""
+
+    RING_IN_MEMORY = 1 << 20
+    READ_ROWS = 1 << 13  # rows per chunk read back (8192 rows of up to ~12 columns: < 1 MB)
+
+    def __init__(self, capacity: int | None, width: int):
+        self.capacity, self.width, self.n = capacity, width, 0
+        self.blocks: list = []  # in memory: the last blocks of rows, together >= capacity rows
+        self.kept = 0  # rows in self.blocks
+        self.file = None
+        if capacity is not None and capacity * width * 8 > self.RING_IN_MEMORY:
+            import tempfile
+
+            try:
+                self.file = tempfile.TemporaryFile()
+            except OSError:
+                pass  # no usable temporary directory: memory it is
+
+    def append(self, rows) -> None:
+        if self.file is not None:
+            try:
+                self._write(rows)
+                self.n += len(rows)
+                return
+            except OSError:  # the file could not grow (a full disk): what it holds goes back to memory
+                self.blocks = [np.array(c) for c in self.chunks()]
+                self.kept = sum(len(b) for b in self.blocks)
+                self.file.close()
+                self.file = None
+        self.blocks.append(rows)
+        self.n += len(rows)
+        self.kept += len(rows)
+        while self.capacity is not None and self.kept - len(self.blocks[0]) >= self.capacity:
+            self.kept -= len(self.blocks.pop(0))
+
+    def _write(self, rows) -> None:
+        import os
+
+        c, start = self.capacity, self.n
+        if len(rows) > c:  # only the last `capacity` rows can matter
+            start, rows = start + len(rows) - c, rows[-c:]
+        rows = np.ascontiguousarray(rows, dtype=np.float64)
+        while len(rows):
+            p = start % c
+            part = rows[:c - p]
+            os.pwrite(self.file.fileno(), part.tobytes(), p * self.width * 8)
+            start, rows = start + len(part), rows[len(part):]
+
+    @property
+    def held(self) -> int:
+        """How many rows the ring holds."""
+        return self.kept if self.file is None else min(self.n, self.capacity)
+
+    @property
+    def dropped(self) -> bool:
+        """Rows were dropped: the ring holds the last ones only."""
+        return self.n > self.held
+
+    def chunks(self):
+        """The rows held, oldest first, in blocks of (k, width)."""
+        if self.file is None:
+            yield from self.blocks
+            return
+        import os
+
+        c, w = self.capacity, self.width
+        i = max(0, self.n - c)
+        while i < self.n:
+            p = i % c
+            k = min(self.READ_ROWS, self.n - i, c - p)
+            data = os.pread(self.file.fileno(), k * w * 8, p * w * 8)
+            yield np.frombuffer(data, dtype=np.float64).reshape(k, w)
+            i += k
+
+    def close(self) -> None:
+        if self.file is not None:
+            self.file.close()
+            self.file = None
+
+
+class _FinalWindow:
+    """The final window's reductions, fed the window's rows in order (ring columns, see _LoopStream):
+    its start, max |z_i|, max and min V1, max phi_hat, and (stages) max |z_hat - z| per component and
+    its sum of squares; it keeps the window's u (and u_applied) whole, for the chattering indices
+    (their FFT and np.sum's pairwise bits need the whole array): 8 bytes per window sample (16 with
+    stages)."""
+
+    def __init__(self, r: int, staged: bool, capacity: int):
+        self.r, self.staged, self.m = r, staged, 0
+        self.start = None
+        self.z_max = self.v_max = self.v_min = self.ph_max = self.e_max = None
+        self.e_sq = _AxisSum(r)
+        self.u = np.empty(capacity)  # filled up to m
+        self.u_applied = np.empty(capacity if staged else 0)
+
+    def update(self, rows) -> None:
+        r, m, k = self.r, self.m, len(rows)
+        if k == 0:
+            return
+        if self.start is None:
+            self.start = float(rows[0, 0])
+        z = rows[:, 1:1 + r]
+        self.z_max = _nan_max(self.z_max, np.max(np.abs(z), axis=0))
+        self.u[m:m + k] = rows[:, 1 + r]
+        V1, ph = rows[:, 2 + r], rows[:, 3 + r]
+        self.v_max, self.v_min = _nan_max(self.v_max, np.max(V1)), _nan_min(self.v_min, np.min(V1))
+        self.ph_max = _nan_max(self.ph_max, np.max(ph))
+        if self.staged:
+            e = np.abs(rows[:, 4 + r:4 + 2 * r] - z)
+            self.e_max = _nan_max(self.e_max, np.max(e, axis=0))
+            self.e_sq.update(e * e)
+            self.u_applied[m:m + k] = rows[:, 4 + 2 * r]
+        self.m = m + k
+
+
 class _LoopStream:
     """The metrics of one loop from its batches ({field: array}, as logged); see :func:`loop_metrics`.
 
-    Whole-run metrics are reduced batch by batch; the final-window ones are computed at the end from
-    the last ``window`` samples (None: every sample is kept), the most the window can hold.
+    Whole-run metrics are reduced batch by batch; the final-window ones at the end, from the ring of
+    the last ``window`` samples (None: every sample is kept), the most the window can hold. A ring row
+    is t, z (r), u, V1, phi_hat and, with stages, z_hat (r), u_applied.
     """
 
     def __init__(self, info: RunInfo, loop, window: int | None):
@@ -405,9 +562,8 @@ class _LoopStream:
         self.settle = _SettleTracker(ms.settle_level)
         self.settle_z1 = _SettleTracker(ms.settle_z1)
         self.n = 0
-        self.tail: list[dict] = []  # the last batches' window fields, at least `window` samples
-        self.tail_n = 0
-        self.dropped = False
+        self.stages = getattr(loop, "stages", None)
+        self.ring = _Ring(window, 4 + loop.r + (loop.r + 1 if self.stages is not None else 0))
         self.first = self.last = None
         self.abs_sum, self.sq_sum = _BlockSum(), _BlockSum()
         self.u_max = self.phi_hat_max = self.u_applied_max = None
@@ -440,16 +596,32 @@ class _LoopStream:
                 self.v_min, self.v_max = np.min(after), np.max(after)
         else:
             self.v_min, self.v_max = np.minimum(self.v_min, np.min(V1)), np.maximum(self.v_max, np.max(V1))
-        stages = getattr(self.loop, "stages", None)
-        if stages is not None:
-            self.n_saturated += saturated_time(u, stages, 1.0)  # a count: exact
+        cols = [t[:, None], z, u[:, None], V1[:, None], a["phi_hat"][:, None]]
+        if self.stages is not None:
+            self.n_saturated += saturated_time(u, self.stages, 1.0)  # a count: exact
             self.u_applied_max = _nan_max(self.u_applied_max, np.max(np.abs(a["u_applied"])))
+            cols += [a["z_hat"], a["u_applied"][:, None]]
         self.n += m
-        self.tail.append({f: a[f] for f in _WINDOW_FIELDS if f in a})
-        self.tail_n += m
-        while self.window is not None and self.tail_n - len(self.tail[0]["t"]) >= self.window:
-            self.tail_n -= len(self.tail.pop(0)["t"])
-            self.dropped = True
+        self.ring.append(np.hstack(cols))
+
+    def _final_window(self) -> _FinalWindow:
+        """The reductions of the final window: the samples with t_k >= t_0 + (1 - final_fraction) n h, or
+        the last sample when there is none."""
+        ms, h, n, ring = self.info.metric_settings, self.info.period, self.n, self.ring
+        start = self.first["t"] + (1.0 - ms.final_fraction) * n * h
+        fw = _FinalWindow(self.loop.r, self.stages is not None, ring.held)
+        last = None
+        for k, rows in enumerate(ring.chunks()):
+            win = rows[:, 0] >= start
+            if k == 0 and ring.dropped and win[0]:  # (cannot happen: window >= the window's length)
+                raise RuntimeError(f"the final window of loop {self.loop.name} is longer than the "
+                                   f"{self.window} samples kept")
+            fw.update(rows[win])
+            last = rows[-1:]
+        if fw.m == 0:
+            fw.update(last)
+        ring.close()
+        return fw
 
     def result(self) -> dict:
         loop, info, n = self.loop, self.info, self.n
@@ -457,20 +629,15 @@ class _LoopStream:
         if n == 0:
             return out
         ms, h = info.metric_settings, info.period
-        w = {f: np.concatenate([b[f] for b in self.tail]) for f in self.tail[0]}
-        win = w["t"] >= self.first["t"] + (1.0 - ms.final_fraction) * n * h
-        if self.dropped and win[0]:  # (cannot happen: window >= the window's length; never answer short)
-            raise RuntimeError(f"the final window of loop {loop.name} is longer than the {self.window} samples kept")
-        if not win.any():
-            win[-1] = True
+        fw = self._final_window()
         ts = self.settle.result(n, self.first["t"])
         tb = time_bound(loop, self.first["V1"])
         left = _workspace_text(loop, self.ext)
-        stages = getattr(loop, "stages", None)
+        stages = self.stages
         reasons = stage_reasons(stages)
         # the true bounds only hold inside the workspace; the stages may break the theorems' assumptions
         applies = bound_applies(loop) and not left and not reasons
-        u_win = w["u"][win]
+        u_win = fw.u[:fw.m]
         out.update({
             "z0": [_num(x) for x in self.first["z"]],
             "V1_initial": _num(self.first["V1"]),
@@ -483,8 +650,8 @@ class _LoopStream:
             "workspace_left": left,
             "bound_applies": applies,
             "beat_bound": (bool(ts <= tb) if applies and ts is not None and tb is not None else None),
-            "final_window_start": float(w["t"][win][0]),
-            "final_abs_z_max": final_abs_max(w["z"][win]),
+            "final_window_start": fw.start,
+            "final_abs_z_max": [_num(x) for x in fw.z_max],  # final_abs_max, a running max
             "chattering": chattering(u_win, h),
             "chattering_du_dt_var": du_dt_variance(u_win, h),
             "chattering_zero_crossings": zero_crossing_rate(u_win, h),
@@ -499,20 +666,20 @@ class _LoopStream:
             "V1_max_after_entry": None if self.entry is None else _num(self.v_max),
             "phi_hat_max": _num(self.phi_hat_max),
             "phi_hat_final": _num(self.last["phi_hat"]),
-            "theorem3": None if left else theorem3_check(loop, w["V1"][win], w["phi_hat"][win]),
+            "theorem3": None if left else theorem3_check(loop, fw.v_max, fw.ph_max, fw.v_min),
             "certificate": certificate_summary(loop),
         })
         if stages is not None:  # the loop's sensor, observer, actuator (records.STAGE_FIELDS)
-            e_max, e_rms = estimation_error(w["z_hat"][win], w["z"][win])
             t_sat = self.n_saturated * h  # saturated_time(u, stages, h)
             out.update({
                 "bound_applies_reason": "; ".join(reasons) if reasons else None,
                 "u_needed": stages["u_needed"],
-                "estimation_error_max": e_max,
-                "estimation_error_rms": e_rms,
+                # estimation_error(z_hat, z) of the window, reduced as it is read
+                "estimation_error_max": [_num(x) for x in fw.e_max],
+                "estimation_error_rms": [_num(x) for x in np.sqrt(fw.e_sq.result() / fw.m)],
                 "time_saturated": _num(t_sat),
                 "saturated_fraction": _num(t_sat / (n * h)),
-                "chattering_applied": chattering(w["u_applied"][win], h),
+                "chattering_applied": chattering(fw.u_applied[:fw.m], h),
                 "u_applied_max_abs": _num(self.u_applied_max),
             })
         return out
@@ -525,12 +692,15 @@ class MetricsStream:
         for batch in batches: stream.update(batch.loops)   # {loop name: {field: array}}
         metrics = stream.result(status)            # compute_metrics' dict
 
-    Kept: per loop, running sums, extremes and first/last values for the whole-run metrics, and the
-    last ceil(final_fraction n_total) + 2 samples of the window fields (t, z, u, V1, phi_hat, z_hat,
-    u_applied) for the final-window ones, plus up to one batch. n_total None keeps every window sample.
+    Kept: per loop, running sums, extremes and first/last values for the whole-run metrics, and a ring
+    of the last ceil(final_fraction n_total) + 2 samples of t, z, u, V1, phi_hat (z_hat, u_applied)
+    for the final-window ones: in memory up to 1 MiB, beyond in a temporary file (_Ring). At the end the
+    window is read back and reduced; only its u (and u_applied) is held whole, for the chattering
+    indices. n_total None keeps every window sample in memory.
     Equal to :func:`compute_metrics` of the concatenated arrays (a replay) bit for bit, whatever the
     batches; against the definitions on whole arrays (effort's np.sum) effort_abs and effort_sq agree to
-    rounding (exactly up to 32768 samples, _BlockSum), every other metric exactly.
+    rounding (exactly up to 32768 samples, _BlockSum), as does estimation_error_rms of an r = 1 loop;
+    every other metric exactly.
     """
 
     def __init__(self, info: RunInfo, n_total: int | None = None):

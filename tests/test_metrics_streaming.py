@@ -8,8 +8,9 @@ import pytest
 
 from ftstab_mj.logs import McapSink
 from ftstab_mj.logs.reader import read_log
-from ftstab_mj.metrics import (MetricsStream, _BlockSum, _finite_or_nan, band_rms, chattering, compute_metrics, effort, eps_ball,
-                               final_abs_max, saturated_time, settle_time, workspace_left)
+from ftstab_mj.metrics import (MetricsStream, _BlockSum, _finite_or_nan, _num, _Ring, band_rms, chattering, compute_metrics,
+                               du_dt_variance, effort, eps_ball, estimation_error, final_abs_max, saturated_time, settle_time,
+                               theorem3_check, workspace_left, zero_crossing_rate)
 from ftstab_mj.records import LOOP_FIELDS
 from ftstab_mj.scenario import load_scenario, shipped_scenarios
 from ftstab_mj.scenario.run import run_scenario
@@ -47,8 +48,16 @@ def _whole_array_checks(info, lp, arrays, m):
     assert m["final_abs_z_max"] == final_abs_max(z[win])
     assert m["chattering"] == chattering(u[win], h)
     assert m["chattering_band_rms"] == band_rms(u[win], h, ms.chatter_band)
+    assert m["chattering_du_dt_var"] == du_dt_variance(u[win], h)
+    assert m["chattering_zero_crossings"] == zero_crossing_rate(u[win], h)
+    if not m["workspace_left"]:
+        V1w, phw = V1[win], a["phi_hat"][win]
+        assert m["theorem3"] == theorem3_check(lp, np.max(V1w), np.max(phw), np.min(V1w))
     if lp.stages is not None:
         assert m["time_saturated"] == saturated_time(u, lp.stages, h)
+        e_max, e_rms = estimation_error(a["z_hat"][win], z[win])  # exact: r >= 2 (or a window of <= 32768)
+        assert (m["estimation_error_max"], m["estimation_error_rms"]) == (e_max, e_rms)
+        assert m["chattering_applied"] == chattering(a["u_applied"][win], h)
 
 
 @pytest.mark.parametrize("name,path", SHIPPED, ids=[n for n, _ in SHIPPED])
@@ -68,6 +77,82 @@ def test_streamed_metrics_are_the_whole_arrays_metrics_and_replays(name, path, t
     for k in range(0, res.n_samples, 7):
         stream.update({name: {f: x[k:k + 7] for f, x in arrays.items()} for name, arrays in res.loops.items()})
     assert stream.result(res.status) == run.metrics
+    # the final window's ring in its temporary file (as a long run's is), wrapping round many times
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(_Ring, "RING_IN_MEMORY", 0)
+        mp.setattr(_Ring, "READ_ROWS", 100)
+        stream = MetricsStream(res.info, res.n_samples)
+        assert all(s.ring.file is not None for s in stream.loops.values())
+        for k in range(0, res.n_samples, 7):
+            stream.update({name: {f: x[k:k + 7] for f, x in arrays.items()} for name, arrays in res.loops.items()})
+        assert stream.result(res.status) == run.metrics
+
+
+@pytest.mark.parametrize("in_memory", [True, False])
+def test_the_ring_holds_the_last_rows_in_memory_or_in_its_file(in_memory, monkeypatch):
+    rows = np.random.default_rng(4).normal(size=(5000, 3))
+    monkeypatch.setattr(_Ring, "RING_IN_MEMORY", 1 << 30 if in_memory else 0)
+    monkeypatch.setattr(_Ring, "READ_ROWS", 64)
+    for capacity in (1, 37, 1000, 6000):
+        ring, k = _Ring(capacity, 3), 0
+        assert (ring.file is None) == in_memory
+        for size in np.random.default_rng(capacity).integers(1, 300, size=10_000):
+            ring.append(rows[k:k + size])
+            k += size
+            if k >= len(rows):
+                break
+        held = np.concatenate(list(ring.chunks()))
+        assert len(held) == ring.held >= min(capacity, len(rows)) and ring.dropped == (len(rows) > ring.held)
+        assert np.array_equal(held, rows[len(rows) - len(held):])  # the last rows, in order, bit for bit
+        if not in_memory:
+            assert ring.held == min(capacity, len(rows))  # the file holds exactly the capacity
+
+
+def test_a_ring_whose_file_cannot_grow_goes_back_to_memory(monkeypatch):
+    import os
+
+    rows = np.arange(3000.0).reshape(1000, 3)
+    monkeypatch.setattr(_Ring, "RING_IN_MEMORY", 0)
+    ring = _Ring(500, 3)
+    ring.append(rows[:600])
+    real = os.pwrite
+
+    def full(fd, data, offset):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(os, "pwrite", full)
+    ring.append(rows[600:700])
+    monkeypatch.setattr(os, "pwrite", real)
+    ring.append(rows[700:])
+    assert ring.file is None
+    held = np.concatenate(list(ring.chunks()))
+    assert len(held) >= 500 and np.array_equal(held, rows[len(rows) - len(held):])
+
+
+def test_the_chattering_indices_keep_the_bits_of_their_numpy_definitions():
+    # computed in place or in blocks of 65536 (a long window costs about one extra array): the bits
+    # of the one-line NumPy definitions, on windows longer than the blocks, with zeros and NaN
+    rng = np.random.default_rng(5)
+    for m in (2, 3, 65535, 65537, 200_001):
+        for kind in ("plain", "offset", "zeros", "nan"):
+            u = rng.normal(size=m) + (5.0 if kind == "offset" else 0.0)
+            if kind in ("zeros", "nan"):
+                u[rng.random(m) < 0.3] = 0.0
+            if kind == "nan":
+                u[rng.random(m) < 0.05] = np.nan
+            h = 1e-3
+            assert chattering(u, h) == _num(np.sum(np.abs(np.diff(u))) / (m * h))
+            assert du_dt_variance(u, h) == _num(np.var(np.diff(u) / h))
+            s = np.sign(u[np.isfinite(u)])
+            s = s[s != 0]
+            assert zero_crossing_rate(u, h) == _num(np.count_nonzero(s[1:] != s[:-1]) / (m * h))
+            U, f = np.fft.rfft(u), np.fft.rfftfreq(m, h)
+            amp2 = (2.0 * np.abs(U) / m) ** 2 / 2.0
+            if m % 2 == 0:
+                amp2[-1] = (np.abs(U[-1]) / m) ** 2
+            for band in ((10.0, 1000.0), (0.0, 10.0), (1 / (m * h), 3 / (m * h)), (500.0, 500.0), (600.0, 700.0)):
+                sel = (f > 0.0) & (f >= band[0]) & (f <= band[1])
+                assert band_rms(u, h, band) == _num(np.sqrt(np.sum(amp2[sel]))), (m, kind, band)
 
 
 def test_block_sums_do_not_depend_on_the_batching():
@@ -94,15 +179,17 @@ def test_a_run_keeps_no_sample_unless_asked():
 
 
 def test_memory_of_a_run_does_not_grow_with_its_samples():
-    # 10^5 samples (100 s at 1 ms) of the cart without keep_samples. One sample as the run used to keep
-    # it is >= 12 float64 per loop field row (t, z (2), u, V1, phi, gamma, phi_hat, gamma_hat ...) plus
-    # the body poses (7 per body): >= 150 bytes (the issue measured 378 B of RSS per sample). Kept, 10^5
-    # samples would take >= 15 MB. Streaming holds: one batch (1000 samples, ~0.4 MB with its copies),
-    # the final window's ring (final_fraction 0.2: 20,002 samples of t, z, u, V1, phi_hat = 48 B each,
-    # 0.96 MB) and the batch it may overhang by, the two effort block sums' carries (< 2 x 32768 x 8 B
-    # = 0.5 MB, twice while a batch is appended), < 2.5 MB in all; the threshold 4 MB (under a third of the
-    # retained 15 MB, well below the 37.8 MB the issue measured) leaves room for interpreter noise.
-    sc = load_scenario(CART, ["sim.duration=100", "sim.period=0.001", "sim.physics_step=0.001"])
+    # 4 x 10^5 samples (400 s at 1 ms) of the cart without keep_samples. One sample as the run used to
+    # keep it is >= 12 float64 per loop field row (t, z (2), u, V1, phi, gamma, phi_hat, gamma_hat ...)
+    # plus the body poses (7 per body): >= 150 bytes (the issue measured 378 B of RSS per sample): 60 MB
+    # kept. The final window's samples in memory (final_fraction 0.2: 80,002 rows of t, z, u, V1, phi_hat,
+    # 48 B each) would be 3.8 MB, twice that when joined at the end. Streaming holds: one batch (1000
+    # samples, ~0.4 MB with its copies), the ring's rows in its temporary file (not memory) read back
+    # 8192 at a time (0.4 MB, twice when masked), the window's u (80,002 x 8 B = 0.64 MB) and one array
+    # of its size for the chattering indices (np.diff, the FFT's half spectrum), the effort block sums'
+    # carries (< 2 x 32768 x 8 B = 0.5 MB): < 3 MB in all; the threshold 4 MB (what 10^5 samples were
+    # allowed before) is exceeded if the window is held in memory again.
+    sc = load_scenario(CART, ["sim.duration=400", "sim.period=0.001", "sim.physics_step=0.001"])
     assert sc.metrics.final_fraction == 0.2
     run_scenario(load_scenario(CART, ["sim.duration=0.01"]))  # imports and caches outside the count
     tracemalloc.start()
@@ -111,5 +198,5 @@ def test_memory_of_a_run_does_not_grow_with_its_samples():
         peak = tracemalloc.get_traced_memory()[1]
     finally:
         tracemalloc.stop()
-    assert run.metrics["n_samples"] == 100_000
-    assert peak < 4e6, f"peak {peak / 1e6:.1f} MB for 10^5 samples"
+    assert run.metrics["n_samples"] == 400_000
+    assert peak < 4e6, f"peak {peak / 1e6:.1f} MB for 4 x 10^5 samples"
