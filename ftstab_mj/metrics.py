@@ -429,48 +429,86 @@ class _AxisSum:
 
 
 class _Ring:
-    """The last ``capacity`` rows (float64, ``width`` columns) of a stream: what the final window may
-    need. Up to RING_IN_MEMORY bytes they stay in memory; beyond, in an unlinked temporary file (the
-    default temporary directory), so that the page cache holds them rather than the process and a run's
-    memory does not grow with its length. capacity None: every row, in memory."""
+    """The last rows (float64, ``width`` columns) of a stream, at least ``capacity`` of them: what the
+    final window may need. The capacity only grows (:meth:`grow`), so a row is dropped only once more
+    than ``capacity`` rows came after it. Up to RING_IN_MEMORY bytes the rows stay in memory; beyond, in
+    an unlinked temporary file (the default temporary directory), so that the page cache holds them
+    rather than the process and a run's memory does not grow with its length."""
 
     RING_IN_MEMORY = 1 << 20
     READ_ROWS = 1 << 13  # rows per chunk read back (8192 rows of up to ~12 columns: < 1 MB)
 
-    def __init__(self, capacity: int | None, width: int):
-        self.capacity, self.width, self.n = capacity, width, 0
+    def __init__(self, width: int, capacity: int = 1):
+        self.width, self.capacity, self.n = width, 0, 0
         self.blocks: list = []  # in memory: the last blocks of rows, together >= capacity rows
-        self.kept = 0  # rows in self.blocks
-        self.file = None
-        if capacity is not None and capacity * width * 8 > self.RING_IN_MEMORY:
-            import tempfile
+        self.kept = 0  # rows held (in self.blocks, or the last ones written to the file)
+        self.file = None  # in the file: row k at (k % capacity) * width * 8
+        self.grow(capacity)
 
-            try:
-                self.file = tempfile.TemporaryFile()
-            except OSError:
-                pass  # no usable temporary directory: memory it is
+    def grow(self, capacity: int) -> None:
+        """Hold at least ``capacity`` rows from now on. Into the file once they pass RING_IN_MEMORY
+        bytes; a file is rewritten at twice the size or more (few rewrites). A temporary file that
+        cannot be made or grow (no temporary directory, a full disk) leaves the rows in memory."""
+        if capacity <= self.capacity:
+            return
+        if self.file is None and capacity * self.width * 8 <= self.RING_IN_MEMORY:
+            self.capacity = capacity
+            return
+        import tempfile
+
+        old, old_capacity = self.file, self.capacity
+        capacity = max(capacity, 2 * old_capacity) if old is not None else capacity
+        held = self._read(old, old_capacity) if old is not None else iter(self.blocks)
+        kept = min(self.kept, capacity)
+        try:
+            new = tempfile.TemporaryFile()
+        except OSError:
+            self._to_memory(capacity)
+            return
+        self.file, self.capacity = new, capacity
+        try:
+            i = self.n - self.kept
+            for rows in held:
+                self._write(rows, i)
+                i += len(rows)
+        except OSError:
+            self.file, self.capacity = old, old_capacity
+            new.close()
+            self._to_memory(capacity)
+            return
+        if old is not None:
+            old.close()
+        self.blocks, self.kept = [], kept
+
+    def _to_memory(self, capacity: int) -> None:
+        """Keep the rows in memory from now on (the file, if any, read back and closed)."""
+        if self.file is not None:
+            self.blocks = [np.array(c) for c in self._read(self.file, self.capacity)]
+            self.kept = sum(len(b) for b in self.blocks)
+            self.file.close()
+            self.file = None
+        self.capacity = max(self.capacity, capacity)
 
     def append(self, rows) -> None:
         if self.file is not None:
             try:
-                self._write(rows)
+                self._write(rows, self.n)
                 self.n += len(rows)
+                self.kept = min(self.kept + len(rows), self.capacity)
                 return
             except OSError:  # the file could not grow (a full disk): what it holds goes back to memory
-                self.blocks = [np.array(c) for c in self.chunks()]
-                self.kept = sum(len(b) for b in self.blocks)
-                self.file.close()
-                self.file = None
+                self._to_memory(self.capacity)
         self.blocks.append(rows)
         self.n += len(rows)
         self.kept += len(rows)
-        while self.capacity is not None and self.kept - len(self.blocks[0]) >= self.capacity:
+        while self.kept - len(self.blocks[0]) >= self.capacity:
             self.kept -= len(self.blocks.pop(0))
 
-    def _write(self, rows) -> None:
+    def _write(self, rows, start: int) -> None:
+        """Rows start, start + 1, ... into the file."""
         import os
 
-        c, start = self.capacity, self.n
+        c = self.capacity
         if len(rows) > c:  # only the last `capacity` rows can matter
             start, rows = start + len(rows) - c, rows[-c:]
         rows = np.ascontiguousarray(rows, dtype=np.float64)
@@ -483,7 +521,7 @@ class _Ring:
     @property
     def held(self) -> int:
         """How many rows the ring holds."""
-        return self.kept if self.file is None else min(self.n, self.capacity)
+        return self.kept
 
     @property
     def dropped(self) -> bool:
@@ -492,17 +530,16 @@ class _Ring:
 
     def chunks(self):
         """The rows held, oldest first, in blocks of (k, width)."""
-        if self.file is None:
-            yield from self.blocks
-            return
+        return iter(self.blocks) if self.file is None else self._read(self.file, self.capacity)
+
+    def _read(self, file, capacity: int):
         import os
 
-        c, w = self.capacity, self.width
-        i = max(0, self.n - c)
+        w, i = self.width, self.n - self.kept
         while i < self.n:
-            p = i % c
-            k = min(self.READ_ROWS, self.n - i, c - p)
-            data = os.pread(self.file.fileno(), k * w * 8, p * w * 8)
+            p = i % capacity
+            k = min(self.READ_ROWS, self.n - i, capacity - p)
+            data = os.pread(file.fileno(), k * w * 8, p * w * 8)
             yield np.frombuffer(data, dtype=np.float64).reshape(k, w)
             i += k
 
@@ -550,20 +587,22 @@ class _FinalWindow:
 class _LoopStream:
     """The metrics of one loop from its batches ({field: array}, as logged); see :func:`loop_metrics`.
 
-    Whole-run metrics are reduced batch by batch; the final-window ones at the end, from the ring of
-    the last ``window`` samples (None: every sample is kept), the most the window can hold. A ring row
-    is t, z (r), u, V1, phi_hat and, with stages, z_hat (r), u_applied.
+    Whole-run metrics are reduced batch by batch; the final-window ones at the end, from a ring of the
+    last samples: after n samples it holds at least window(n) = ceil(final_fraction n) + 2 of them, the
+    most the final window can hold then or later (t_k = t_0 + k h: the window of a longer run starts
+    later). ``n_total``: the most samples expected (a hint sizing the ring at once; None: it grows). A
+    ring row is t, z (r), u, V1, phi_hat and, with stages, z_hat (r), u_applied.
     """
 
-    def __init__(self, info: RunInfo, loop, window: int | None):
-        self.info, self.loop, self.window = info, loop, window
+    def __init__(self, info: RunInfo, loop, n_total: int | None):
+        self.info, self.loop = info, loop
         ms = info.metric_settings
         self.eps = float(loop.law_params["eps"]) if loop.law == "adaptive" else ms.settle_level
         self.settle = _SettleTracker(ms.settle_level)
         self.settle_z1 = _SettleTracker(ms.settle_z1)
         self.n = 0
         self.stages = getattr(loop, "stages", None)
-        self.ring = _Ring(window, 4 + loop.r + (loop.r + 1 if self.stages is not None else 0))
+        self.ring = _Ring(4 + loop.r + (loop.r + 1 if self.stages is not None else 0), self._window(n_total or 0))
         self.first = self.last = None
         self.abs_sum, self.sq_sum = _BlockSum(), _BlockSum()
         self.u_max = self.phi_hat_max = self.u_applied_max = None
@@ -602,7 +641,13 @@ class _LoopStream:
             self.u_applied_max = _nan_max(self.u_applied_max, np.max(np.abs(a["u_applied"])))
             cols += [a["z_hat"], a["u_applied"][:, None]]
         self.n += m
+        self.ring.grow(self._window(self.n))
         self.ring.append(np.hstack(cols))
+
+    def _window(self, n: int) -> int:
+        """The most samples the final window of n samples holds: those with t_k >= t_0 + (1 - ff) n h,
+        at most ff n + 1 of them (+1 for rounding)."""
+        return int(math.ceil(self.info.metric_settings.final_fraction * n)) + 2
 
     def _final_window(self) -> _FinalWindow:
         """The reductions of the final window: the samples with t_k >= t_0 + (1 - final_fraction) n h, or
@@ -613,9 +658,9 @@ class _LoopStream:
         last = None
         for k, rows in enumerate(ring.chunks()):
             win = rows[:, 0] >= start
-            if k == 0 and ring.dropped and win[0]:  # (cannot happen: window >= the window's length)
-                raise RuntimeError(f"the final window of loop {self.loop.name} is longer than the "
-                                   f"{self.window} samples kept")
+            if k == 0 and ring.dropped and win[0]:  # only with times not t_0 + k h (not a run's)
+                raise ValueError(f"the final window of loop {self.loop.name} starts before the last "
+                                 f"{ring.held} of its {n} samples: its times t are not spaced by the period")
             fw.update(rows[win])
             last = rows[-1:]
         if fw.m == 0:
@@ -693,10 +738,10 @@ class MetricsStream:
         metrics = stream.result(status)            # compute_metrics' dict
 
     Kept: per loop, running sums, extremes and first/last values for the whole-run metrics, and a ring
-    of the last ceil(final_fraction n_total) + 2 samples of t, z, u, V1, phi_hat (z_hat, u_applied)
+    of the last ceil(final_fraction n) + 2 samples (n so far) of t, z, u, V1, phi_hat (z_hat, u_applied)
     for the final-window ones: in memory up to 1 MiB, beyond in a temporary file (_Ring). At the end the
     window is read back and reduced; only its u (and u_applied) is held whole, for the chattering
-    indices. n_total None keeps every window sample in memory.
+    indices. n_total (a hint: None when unknown, e.g. a log read as it streams) sizes the ring at once.
     Equal to :func:`compute_metrics` of the concatenated arrays (a replay) bit for bit, whatever the
     batches; against the definitions on whole arrays (effort's np.sum) effort_abs and effort_sq agree to
     rounding (exactly up to 32768 samples, _BlockSum), as does estimation_error_rms of an r = 1 loop;
@@ -704,11 +749,8 @@ class MetricsStream:
     """
 
     def __init__(self, info: RunInfo, n_total: int | None = None):
-        ff = info.metric_settings.final_fraction
-        # the window holds the samples with t_k >= t_0 + (1 - ff) n h, at most ff n + 1 of them (+1 for rounding)
-        window = None if n_total is None else int(math.ceil(ff * n_total)) + 2
         self.info = info
-        self.loops = {lp.name: _LoopStream(info, lp, window) for lp in info.loops}
+        self.loops = {lp.name: _LoopStream(info, lp, n_total) for lp in info.loops}
 
     def update(self, loops: dict) -> None:
         for name, stream in self.loops.items():

@@ -88,24 +88,29 @@ def test_streamed_metrics_are_the_whole_arrays_metrics_and_replays(name, path, t
         assert stream.result(res.status) == run.metrics
 
 
-@pytest.mark.parametrize("in_memory", [True, False])
-def test_the_ring_holds_the_last_rows_in_memory_or_in_its_file(in_memory, monkeypatch):
+@pytest.mark.parametrize("limit", [1 << 30, 0, 4000], ids=["memory", "file", "memory-then-file"])
+def test_the_ring_holds_the_last_rows_as_it_grows(limit, monkeypatch):
+    # the ring grows as a run's final window does (a fifth of the rows so far): in memory, in its file
+    # (rewritten larger), or first in memory then in the file once past the limit (4000 B: 166 rows of 3)
     rows = np.random.default_rng(4).normal(size=(5000, 3))
-    monkeypatch.setattr(_Ring, "RING_IN_MEMORY", 1 << 30 if in_memory else 0)
+    monkeypatch.setattr(_Ring, "RING_IN_MEMORY", limit)
     monkeypatch.setattr(_Ring, "READ_ROWS", 64)
-    for capacity in (1, 37, 1000, 6000):
-        ring, k = _Ring(capacity, 3), 0
-        assert (ring.file is None) == in_memory
-        for size in np.random.default_rng(capacity).integers(1, 300, size=10_000):
-            ring.append(rows[k:k + size])
-            k += size
+    for start in (1, 37, 1000, 6000):
+        ring, k = _Ring(3, start), 0
+        for size in np.random.default_rng(start).integers(1, 300, size=10_000):
+            part = rows[k:k + size]
+            ring.grow(max(start, (k + len(part)) // 5))
+            ring.append(part)
+            k += len(part)
+            held = np.concatenate(list(ring.chunks()))
+            assert len(held) == ring.held >= min(k, max(start, k // 5))  # never fewer than asked for
+            assert np.array_equal(held, rows[k - len(held):k])  # the last rows, in order, bit for bit
             if k >= len(rows):
                 break
-        held = np.concatenate(list(ring.chunks()))
-        assert len(held) == ring.held >= min(capacity, len(rows)) and ring.dropped == (len(rows) > ring.held)
-        assert np.array_equal(held, rows[len(rows) - len(held):])  # the last rows, in order, bit for bit
-        if not in_memory:
-            assert ring.held == min(capacity, len(rows))  # the file holds exactly the capacity
+        assert (ring.file is None) == (limit == 1 << 30)  # 1000 rows and more pass 4000 B
+        if ring.file is not None:
+            assert ring.held <= ring.capacity  # the file holds no more than its capacity
+        ring.close()
 
 
 def test_a_ring_whose_file_cannot_grow_goes_back_to_memory(monkeypatch):
@@ -113,7 +118,7 @@ def test_a_ring_whose_file_cannot_grow_goes_back_to_memory(monkeypatch):
 
     rows = np.arange(3000.0).reshape(1000, 3)
     monkeypatch.setattr(_Ring, "RING_IN_MEMORY", 0)
-    ring = _Ring(500, 3)
+    ring = _Ring(3, 500)
     ring.append(rows[:600])
     real = os.pwrite
 
