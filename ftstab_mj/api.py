@@ -25,7 +25,8 @@ class Result:
     "failed"; message: why a run stopped early; logs: {"mcap": Path, "rrd": Path} written
     (empty when ``out`` is None); scenario: the resolved scenario (plain data);
     body_pos (n, nbody, 3) m and body_quat (n, nbody, 4) (w, x, y, z): the bodies' poses (for a
-    replay, at the /tf display rate); warning: a replay's note on a truncated log, else None.
+    replay, at the /tf display rate); all three None with ``keep_samples=False``; warning: a replay's
+    note on a truncated log, else None.
     """
 
     samples: dict
@@ -61,7 +62,8 @@ def load_scenario(name_or_path, overrides=None):
     return load(find_scenario(str(name_or_path)), _overrides(overrides))
 
 
-def run(scenario_or_path, out=None, overrides=None, live=False, foxglove=None, realtime=False) -> Result:
+def run(scenario_or_path, out=None, overrides=None, live=False, foxglove=None, realtime=False,
+        keep_samples=True) -> Result:
     """Run a scenario (a Scenario, a shipped name or a .toml path) and return its :class:`Result`.
 
     out: a directory for ``<name>.mcap`` and ``<name>.rrd`` (None: no logs); overrides: as for
@@ -70,7 +72,9 @@ def run(scenario_or_path, out=None, overrides=None, live=False, foxglove=None, r
     "spawn", "serve" (a ``rerun --serve-web`` server on ports 9876/9090, left running), or a
     rerun+http:// URL; foxglove: (host, port) of a Foxglove WebSocket server that publishes the
     MCAP log's messages while the run lasts (needs ``out``; port 0: a free one); realtime: pace the
-    run to the wall clock. The samples and logs are the same as without them.
+    run to the wall clock. The samples and logs are the same as without them. keep_samples: False
+    keeps none (Result.samples, body_pos, body_quat None): memory does not grow with the run, the
+    metrics are the same.
     Raises ScenarioError on bad input and CallbackError when the controller raised.
     """
     from ftstab_mj.logs import McapSink, RerunSink
@@ -96,7 +100,8 @@ def run(scenario_or_path, out=None, overrides=None, live=False, foxglove=None, r
             sinks += [McapSink(logs["mcap"], live=view.foxglove), RerunSink(logs["rrd"], live=view.rerun)]
         elif view.rerun:
             sinks.append(RerunSink(None, live=view.rerun))
-        done = run_scenario(sc, sinks, keep_samples=True, batch_size=view.batch_size(sc.sim.period))  # Result.samples
+        done = run_scenario(sc, sinks, keep_samples=keep_samples,  # Result.samples
+                            batch_size=view.batch_size(sc.sim.period))
     finally:
         view.stop()
     res = done.result
@@ -104,15 +109,23 @@ def run(scenario_or_path, out=None, overrides=None, live=False, foxglove=None, r
                   scenario=scenario_to_dict(sc), body_pos=res.body_pos, body_quat=res.body_quat)
 
 
-def replay(path) -> Result:
+def replay(path, keep_samples=True) -> Result:
     """Read a run's MCAP log (also a truncated one) and recompute its metrics from the samples.
-    Raises LogError when it is not a log, DamagedLog when its bytes were altered."""
-    from ftstab_mj.logs.reader import read_log
+    keep_samples: False reads it as it streams (Result.samples and the poses None; memory does not
+    grow with the log; the same metrics). Raises LogError when it is not a log, DamagedLog when its
+    bytes were altered."""
+    from ftstab_mj.logs.reader import read_log, stream_metrics
     from ftstab_mj.metrics import compute_metrics
     from ftstab_mj.records import INTERRUPTED
 
-    log = read_log(path)
-    status = log.recorded["status"] if log.recorded else INTERRUPTED
-    return Result(samples=log.loops, metrics=compute_metrics(log.info, log.loops, status), status=status,
+    if keep_samples:
+        log = read_log(path)
+        status = log.recorded["status"] if log.recorded else INTERRUPTED
+        metrics = compute_metrics(log.info, log.loops, status)
+    else:
+        log, metrics = stream_metrics(path)
+        status = metrics["status"]
+    return Result(samples=log.loops if keep_samples else None, metrics=metrics, status=status,
                   message=(log.recorded or {}).get("message", ""), logs={"mcap": Path(path)},
-                  scenario=log.info.scenario, body_pos=log.pose_pos, body_quat=log.pose_quat, warning=log.warning)
+                  scenario=log.info.scenario, body_pos=log.pose_pos if keep_samples else None,
+                  body_quat=log.pose_quat if keep_samples else None, warning=log.warning)

@@ -245,11 +245,24 @@ def _replayed_metrics(log):
     return compute_metrics(log.info, log.loops, status)
 
 
+def _streamed_metrics(path):
+    """reader.stream_metrics (the log read as it streams) + the truncation warning on stderr."""
+    from ftstab_mj.logs.reader import stream_metrics
+
+    log, metrics = stream_metrics(path)
+    if log.warning:
+        print(f"warning: {log.warning}", file=sys.stderr)
+    return log, metrics
+
+
 def cmd_replay(args) -> int:
     from ftstab_mj.metrics import CERTIFICATE_DERIVED, format_table
 
-    log = _read_log(args.log)
-    metrics = _replayed_metrics(log)
+    if args.rrd:  # the recording needs the samples themselves
+        log = _read_log(args.log)
+        metrics = _replayed_metrics(log)
+    else:
+        log, metrics = _streamed_metrics(args.log)
     diff, derived = [], []
     if log.recorded and log.recorded.get("metrics"):  # a failed run records its status without metrics
         from ftstab_mj.keypath import flatten
@@ -328,8 +341,7 @@ def cmd_check(args) -> int:
                                         pin_expectations, to_toml)
 
     if args.pin:
-        log = _read_log(args.log)
-        metrics = _replayed_metrics(log)
+        log, metrics = _streamed_metrics(args.log)
         source = (f"Pinned from {os.path.basename(args.log)}: scenario {log.info.scenario.get('name', '?')}, "
                   f"{metrics['duration']:g} s, control period {log.info.period:g} s.")
         text = to_toml(pin_expectations(metrics, log.info), PIN_HEADER + "\n" + source)
@@ -341,9 +353,9 @@ def cmd_check(args) -> int:
         print(f"wrote {args.pin}: the metrics of {args.log} with the default tolerances")
         return 0
     expected = load_expectations(args.expect)
-    log = _read_log(args.log)
+    log, metrics = _streamed_metrics(args.log)
     try:
-        outcomes = check_metrics(_replayed_metrics(log), expected, source=args.expect)
+        outcomes = check_metrics(metrics, expected, source=args.expect)
     except ExpectationError as exc:
         if log.n_samples or exc.found != "no such metric":
             raise

@@ -47,3 +47,14 @@ def test_the_example_script_runs(tmp_path):
     assert lines[1].startswith("cart_r2_robust") and lines[2].startswith("cart_r2_adaptive")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["cart_r2_adaptive.mcap", "cart_r2_adaptive.rrd",
                                                           "cart_r2_robust.mcap", "cart_r2_robust.rrd"]
+
+
+def test_run_and_replay_without_samples_give_the_same_metrics(tmp_path):
+    import ftstab_mj
+
+    kept = ftstab_mj.run("cart_r2_robust", out=tmp_path, overrides={"sim.duration": 0.5})
+    bare = ftstab_mj.run("cart_r2_robust", overrides={"sim.duration": 0.5}, keep_samples=False)
+    assert bare.samples is None and bare.body_pos is None and bare.metrics == kept.metrics
+    whole, streamed = ftstab_mj.replay(kept.logs["mcap"]), ftstab_mj.replay(kept.logs["mcap"], keep_samples=False)
+    assert len(whole.samples["cart"]["t"]) == 500 and streamed.samples is None and streamed.body_pos is None
+    assert streamed.metrics == whole.metrics == kept.metrics and streamed.status == whole.status == "completed"

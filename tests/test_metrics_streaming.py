@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from ftstab_mj.logs import McapSink
-from ftstab_mj.logs.reader import read_log
+from ftstab_mj.logs.reader import read_log, stream_metrics
 from ftstab_mj.metrics import (MetricsStream, _BlockSum, _finite_or_nan, _num, _Ring, band_rms, chattering, compute_metrics,
                                du_dt_variance, effort, eps_ball, estimation_error, final_abs_max, saturated_time, settle_time,
                                theorem3_check, workspace_left, zero_crossing_rate)
@@ -73,6 +73,8 @@ def test_streamed_metrics_are_the_whole_arrays_metrics_and_replays(name, path, t
     assert compute_metrics(res.info, res.loops, res.status) == run.metrics
     data = read_log(log)
     assert compute_metrics(data.info, data.loops, data.recorded["status"]) == run.metrics == data.recorded["metrics"]
+    streamed, metrics = stream_metrics(log)  # replay: the log's chunks fed to MetricsStream
+    assert metrics == run.metrics and streamed.n_samples == res.n_samples and streamed.complete
     stream = MetricsStream(res.info, res.n_samples)  # batches of 7 samples: boundaries everywhere
     for k in range(0, res.n_samples, 7):
         stream.update({name: {f: x[k:k + 7] for f, x in arrays.items()} for name, arrays in res.loops.items()})
@@ -205,3 +207,32 @@ def test_memory_of_a_run_does_not_grow_with_its_samples():
         tracemalloc.stop()
     assert run.metrics["n_samples"] == 400_000
     assert peak < 4e6, f"peak {peak / 1e6:.1f} MB for 4 x 10^5 samples"
+
+
+def test_replay_of_a_log_does_not_hold_its_samples(tmp_path):
+    # a log of 10^5 samples (100 s of the cart at 1 ms, 4.3 MB) read as it streams (replay, check). Read
+    # whole, its bytes alone would be 4.3 MB and its decoded loop fields (11 float64 a sample) 8.8 MB.
+    # Streaming holds: one chunk's messages and their decoded batch (1000 samples, < 0.3 MB), the final
+    # window's ring (20,002 rows of 48 B: 0.96 MB, in memory below 1 MiB), the window's u and one array of
+    # its size at the end (0.32 MB), the effort block sums' carries (< 0.5 MB): < 2.5 MB; the threshold
+    # 4 MB is under the file's size. The file itself is mapped, not read into Python objects, and its
+    # pages given back after each chunk (RSS: benchmarks/memory_flat.py).
+    sc = load_scenario(CART, ["sim.duration=100", "sim.period=0.001", "sim.physics_step=0.001"])
+    path = tmp_path / "long.mcap"
+    run = run_scenario(sc, [McapSink(path)])
+    assert path.stat().st_size > 4e6
+    stream_metrics(_short_log(tmp_path))  # imports and caches outside the count
+    tracemalloc.start()
+    try:
+        log, metrics = stream_metrics(path)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert metrics == run.metrics and log.n_samples == 100_000
+    assert peak < 4e6, f"peak {peak / 1e6:.1f} MB to replay 10^5 samples"
+
+
+def _short_log(tmp_path):
+    path = tmp_path / "short.mcap"
+    run_scenario(load_scenario(CART, ["sim.duration=0.01"]), [McapSink(path)])
+    return path

@@ -82,9 +82,13 @@ class LogData:
     encoding: str = "protobuf"
     crc_checked: bool = True
     notes: tuple = ()
+    counts: dict | None = None  # {loop name: samples} of a log read as it streams (LogStream: no samples kept)
+    t_last: float | None = None  # and the time of its last sample (s)
 
     @property
     def n_samples(self) -> int:
+        if self.counts is not None:
+            return min(self.counts.values(), default=0)
         return min((len(a["t"]) for a in self.loops.values()), default=0)
 
     @property
@@ -92,7 +96,8 @@ class LogData:
         """One line saying what is wrong with a log that could still be read (None for an intact log)."""
         if self.complete:
             return " ".join(self.notes) or None
-        t_last = max((float(a["t"][-1]) for a in self.loops.values() if len(a["t"])), default=None)
+        t_last = self.t_last if self.counts is not None else max(
+            (float(a["t"][-1]) for a in self.loops.values() if len(a["t"])), default=None)
         upto = f"up to t = {t_last:.6g} s" if t_last is not None else "no sample"
         return (f"{self.path}: truncated log (the run did not finish writing it): recovered {self.n_samples} "
                 f"samples per loop, {upto}, from the first {self.bytes_read} of {self.bytes_total} bytes "
@@ -147,13 +152,17 @@ def _records(buf, pos: int, end: int, where: str):
 
 
 class _Parser:
-    """Collects schemas, channels, messages and metadata while walking the file."""
+    """Collects schemas, channels, metadata and the message counts while walking the file; the
+    messages themselves are handed over chunk by chunk (:meth:`walk`)."""
 
-    def __init__(self, buf, path: str):
+    def __init__(self, buf, path: str, release=None):
         self.buf, self.path, self.total = buf, path, len(buf)
+        self.release = release  # release(offset): the file's bytes before offset are not read again
         self.schemas: dict[int, tuple] = {}  # id -> (name, encoding, data)
         self.channels: dict[int, tuple] = {}  # id -> (topic, schema id, message encoding)
-        self.messages: dict[int, list] = {}  # channel id -> [(sequence, log time, data)]
+        self.counts: dict[int, int] = {}  # channel id -> messages so far (their sequence numbers: 0, 1, ...)
+        self.last_time: dict[int, int] = {}  # channel id -> log time (ns) of its last message
+        self.crc = zlib.crc32(bytes(buf[:len(MCAP_MAGIC)]))  # of the data section read so far
         self.versions: dict = {}
         self.chunks = 0
         self.crc_checked = True
@@ -222,16 +231,25 @@ class _Parser:
         return self._inner(raw, 0, len(raw), k)
 
     def _commit(self, staged):
+        """A chunk found intact: its schemas and channels are known from now on; its messages
+        [(channel id, (sequence, log time, data))] are checked to continue their channel's sequence."""
         schemas, channels, messages = staged
         self.schemas.update(schemas)
         self.channels.update(channels)
-        for cid, m in messages:
-            self.messages.setdefault(cid, []).append(m)
+        for cid, (seq, t_log, _) in messages:
+            if seq != self.counts.get(cid, 0):
+                topic = self.channels.get(cid, ("?", 0, ""))[0]
+                raise DamagedLog(f"{self.path}: damaged log: {topic} messages are missing or out of order "
+                                 "(their sequence numbers have gaps)")
+            self.counts[cid] = seq + 1
+            self.last_time[cid] = t_log
+        return messages
 
     # -- the file ---------------------------------------------------------------------------------
     def walk(self):
-        """Walk every record. Raises _Damage at the first broken one; a cut at the end of a file
-        that never got its footer is a truncation (stops quietly, complete False)."""
+        """Walk every record, yielding the messages of each intact chunk in turn ([(channel id,
+        (sequence, log time, data))]). Raises _Damage at the first broken record; a cut at the end of a
+        file that never got its footer is a truncation (stops quietly, complete False)."""
         buf, total = self.buf, self.total
         ended = buf[-len(MCAP_MAGIC):] == MCAP_MAGIC and total >= 2 * len(MCAP_MAGIC)
         in_summary = False
@@ -241,9 +259,16 @@ class _Parser:
                 if op not in allowed:
                     raise _Damage(start, f"unexpected {_OP.get(op, f'0x{op:02x}')} record "
                                          f"{'in the summary' if in_summary else 'in the data section'}")
+                if not in_summary and op != 0x0F:  # the data section's CRC covers what precedes DataEnd
+                    self.crc = zlib.crc32(buf[start:b1], self.crc)
                 if op == 0x06:
-                    self._commit(self._chunk(b0, b1))
+                    messages = self._commit(self._chunk(b0, b1))
                     self.chunks += 1
+                    self.good = b1
+                    if self.release is not None:
+                        self.release(b1)
+                    yield messages
+                    continue
                 elif op == 0x0C:
                     name, p = _string(buf, b0, b1, "metadata name")
                     (n,), p = _u("<I", buf, p, b1, "metadata map length")
@@ -292,14 +317,14 @@ class _Parser:
                     notes.append(f"{self.path}: the summary fails its CRC check (not used).")
         if summary_ok and self.stats is not None:
             count, chunks, per = self.stats
-            have = {cid: len(m) for cid, m in self.messages.items()}
+            have = self.counts
             if chunks != self.chunks or count != sum(have.values()) or any(
                     per.get(cid, 0) != n for cid, n in have.items()):
                 raise _Damage(0, f"the summary counts {chunks} chunks and {count} messages, the file holds "
                                  f"{self.chunks} chunks and {sum(have.values())} messages (a record was skipped)")
         if self.data_end is not None and self.data_end[1]:
             start, crc = self.data_end
-            if zlib.crc32(bytes(self.buf[:start])) != crc:
+            if self.crc != crc:
                 if not (self.crc_checked and summary_ok):
                     raise _Damage(0, "the data section fails its CRC check")
                 notes.append(f"{self.path}: the data section fails its CRC check outside the chunks (an index or "
@@ -349,88 +374,235 @@ def _protobuf_loop(schema: tuple, datas: list[bytes], r: int, what: str) -> dict
     return out
 
 
-def read_log(path) -> LogData:
-    """Read an ftstab MCAP log (complete or truncated). Raises LogError when it is not one and
-    DamagedLog when its bytes were altered."""
-    path = str(path)
-    try:
-        with open(path, "rb") as f:
-            buf = f.read()
-    except OSError as exc:
-        raise LogError(f"{path}: cannot read the log ({exc.strerror})") from None
-    if buf[:len(MCAP_MAGIC)] != MCAP_MAGIC:
-        raise LogError(f"{path}: not an MCAP log (expected a file starting with the MCAP magic bytes, "
-                       f"found {buf[:8]!r})")
-    p = _Parser(memoryview(buf), path)
-    notes = []
-    try:
-        p.walk()
-        if p.complete:
-            notes = p.check_integrity()
-    except _Damage as d:
-        raise DamagedLog(_damage_line(path, p, d)) from None
-    by_topic = {}
-    for cid, msgs in p.messages.items():
-        topic = p.channels.get(cid, ("?", 0, ""))[0]
-        by_topic[topic] = (cid, msgs)
-    for topic, (cid, msgs) in by_topic.items():
-        if [m[0] for m in msgs] != list(range(len(msgs))):
-            raise DamagedLog(f"{path}: damaged log: {topic} messages are missing or out of order "
-                             "(their sequence numbers have gaps)")
-    if "/run_info" not in by_topic:
-        raise LogError(f"{path}: not an ftstab run log (expected a /run_info message at its start, "
-                       f"found topics {sorted(by_topic) or 'none'})")
+class LogStream:
+    """A log read as it streams, chunk by chunk, in memory that does not grow with it (what replay and
+    check need: the samples pass through once). The same reading and checks as :func:`read_log`::
 
-    def datas(topic):
-        return [m[2] for m in by_topic[topic][1]] if topic in by_topic else []
+        stream = LogStream(path)
+        for loops in stream.batches():   # {loop name: {field: array}} of one chunk (every loop; some empty)
+            ...                           # stream.info (RunInfo) is known from the first batch on
+        log = stream.log                  # LogData once read: no samples in loops (n_samples counts them), no poses
 
-    scenario = _rows(datas("/scenario"), f"{path} /scenario")
-    run = _rows(datas("/run_info"), f"{path} /run_info")[0]
-    info = _run_info(path, scenario[0] if scenario else {}, run)
-    if info.model_xml is not None:  # never compiled unless it is safe to (logs/scene.py)
-        from ftstab_mj.logs.scene import check_untrusted_model
+    The file is mapped and the pages of each chunk given back once it is read. ``poses``: also keep
+    the /tf messages (then ``log`` has the poses); "chunks": hand them over chunk by chunk instead, as
+    ``chunk_poses`` (t (k,), pos (k, nbody, 3), quat (k, nbody, 4)) beside each batch. Raises as
+    read_log does, LogError or DamagedLog, at the point of the file where the problem is found.
+    """
 
-        try:
-            check_untrusted_model(info.model_xml, f"{path} /run_info model_xml")
-        except LogError as exc:
-            notes.append(f"{exc}: the 3D model is left out.")
-            info = replace(info, model_xml=None)
-    loops = {}
-    encoding = "protobuf"
-    for lp in info.loops:
-        topic = f"/loop/{lp.name}"
-        what = f"{path} {topic}"
-        if topic in by_topic:
-            cid = by_topic[topic][0]
-            _, sid, enc = p.channels[cid]
+    KEPT = ("/scenario", "/run_info", "/metrics")  # small topics kept whole (JSON)
+
+    def __init__(self, path, poses: bool | str = False):
+        self.path, self.poses = str(path), poses
+        self.chunk_poses = None
+        self.info: RunInfo | None = None
+        self.log: LogData | None = None
+        self._n = {}  # loop name -> samples read
+        self._t_last = None  # time of the last sample read (s)
+        self._layouts = {}  # channel id -> protobuf layout (decoded once)
+
+    def batches(self):
+        path = self.path
+        with _mapped(path) as (buf, release):
+            if bytes(buf[:len(MCAP_MAGIC)]) != MCAP_MAGIC:
+                raise LogError(f"{path}: not an MCAP log (expected a file starting with the MCAP magic bytes, "
+                               f"found {bytes(buf[:8])!r})")
+            p = _Parser(buf, path, release)
+            kept = {}  # topic -> [data]
+            pending = []  # loop messages met before /run_info (not in a log ftstab wrote)
+            notes = []
+            try:
+                for messages in p.walk():
+                    loops = {}
+                    for cid, (_seq, _t, data) in messages:
+                        topic = p.channels.get(cid, ("?", 0, ""))[0]
+                        if topic.startswith("/loop/"):
+                            loops.setdefault(cid, []).append(data)
+                        elif topic in self.KEPT or (self.poses and topic == "/tf"):
+                            kept.setdefault(topic, []).append(data)
+                    if self.info is None and "/run_info" in kept:
+                        self.info, notes = self._info(kept)
+                    if self.poses == "chunks" and kept.get("/tf"):
+                        loops[None] = kept.pop("/tf")  # (the chunk's poses travel with its samples)
+                    if loops:
+                        pending.append(loops)
+                    if self.info is not None:
+                        for chunk in pending:
+                            yield self._decode(p, chunk)
+                        pending = []
+                if p.complete:
+                    notes += p.check_integrity()
+            except _Damage as d:
+                raise DamagedLog(_damage_line(path, p, d)) from None
+            topics = {p.channels.get(cid, ("?",))[0] for cid in p.counts}
+            if "/run_info" not in topics:
+                raise LogError(f"{path}: not an ftstab run log (expected a /run_info message at its start, "
+                               f"found topics {sorted(topics) or 'none'})")
+            info = self.info
+            encoding = "protobuf"
+            for cid in p.counts:
+                topic, _, enc = p.channels[cid]
+                if topic.startswith("/loop/") and enc == "json":
+                    encoding = "json"
+            for lp in info.loops:
+                self._n.setdefault(lp.name, 0)
+            tf_cid = [cid for cid in p.counts if p.channels[cid][0] == "/tf"]
+            tf_enc = p.channels[tf_cid[0]][2] if tf_cid else "protobuf"
+            pose_t, pos, quat = _poses(kept.get("/tf", []), tf_enc, info.body_names, f"{path} /tf")
+            metrics = _rows(kept.get("/metrics", []), f"{path} /metrics")
+            recorded = metrics[-1] if metrics else None
+            if recorded is not None and not (isinstance(recorded, dict) and isinstance(recorded.get("status"), str)):
+                raise LogError(f"{path} /metrics: expected an object with a status, found {str(recorded)[:60]!r}")
+            self.log = LogData(path=path, info=info, loops={name: {} for name in self._n}, pose_t=pose_t,
+                               pose_pos=pos, pose_quat=quat, recorded=recorded, versions=p.versions,
+                               complete=p.complete, bytes_read=p.total if p.complete else p.good,
+                               bytes_total=p.total, encoding=encoding, crc_checked=p.crc_checked,
+                               notes=tuple(notes), counts=dict(self._n), t_last=self._t_last)
+
+    def _info(self, kept):
+        """RunInfo from the /scenario and /run_info messages, and the notes on its model."""
+        path, notes = self.path, []
+        scenario = _rows(kept.get("/scenario", []), f"{path} /scenario")
+        run = _rows(kept["/run_info"], f"{path} /run_info")[0]
+        info = _run_info(path, scenario[0] if scenario else {}, run)
+        if info.model_xml is not None:  # never compiled unless it is safe to (logs/scene.py)
+            from ftstab_mj.logs.scene import check_untrusted_model
+
+            try:
+                check_untrusted_model(info.model_xml, f"{path} /run_info model_xml")
+            except LogError as exc:
+                notes.append(f"{exc}: the 3D model is left out.")
+                info = replace(info, model_xml=None)
+        return info, notes
+
+    def _decode(self, p, chunk: dict) -> dict:
+        """{loop name: {field: array}} of one chunk's loop messages ({channel id: [data]}); every loop."""
+        by_name = {f"/loop/{lp.name}": lp for lp in self.info.loops}
+        out = {lp.name: _empty_loop(lp.r) for lp in self.info.loops}
+        if self.poses == "chunks":
+            tf = [cid for cid in p.channels if p.channels[cid][0] == "/tf"]
+            self.chunk_poses = _poses(chunk.pop(None, []), p.channels[tf[0]][2] if tf else "protobuf",
+                                      self.info.body_names, f"{self.path} /tf")
+        for cid, datas in chunk.items():
+            topic, sid, enc = p.channels[cid]
+            lp = by_name.get(topic)
+            if lp is None:
+                continue
+            what = f"{self.path} {topic}"
             if enc == "json":
-                encoding = "json"
-                loops[lp.name] = _json_loop(_rows(datas(topic), what), lp.r, what)
+                out[lp.name] = _json_loop(_rows(datas, what), lp.r, what)
             elif sid in p.schemas:
-                loops[lp.name] = _protobuf_loop(p.schemas[sid], datas(topic), lp.r, what)
+                out[lp.name] = _protobuf_loop(p.schemas[sid], datas, lp.r, what)
             else:
                 raise LogError(f"{what}: expected a schema for the channel, found none")
-        else:
-            loops[lp.name] = {f: np.empty((0, lp.r)) if f == "z" else np.empty(0) for f in LOOP_FIELDS}
-    tf_enc = p.channels[by_topic["/tf"][0]][2] if "/tf" in by_topic else "protobuf"
-    pose_t, pos, quat = _poses(datas("/tf"), tf_enc, info.body_names, f"{path} /tf")
-    metrics = _rows(datas("/metrics"), f"{path} /metrics")
-    recorded = metrics[-1] if metrics else None
-    if recorded is not None and not (isinstance(recorded, dict) and isinstance(recorded.get("status"), str)):
-        raise LogError(f"{path} /metrics: expected an object with a status, found {str(recorded)[:60]!r}")
-    return LogData(path=path, info=info, loops=loops, pose_t=pose_t, pose_pos=pos, pose_quat=quat,
-                   recorded=recorded, versions=p.versions, complete=p.complete,
-                   bytes_read=p.total if p.complete else p.good, bytes_total=p.total, encoding=encoding,
-                   crc_checked=p.crc_checked, notes=tuple(notes))
+            t = out[lp.name]["t"]
+            self._n[lp.name] = self._n.get(lp.name, 0) + len(t)
+            if len(t):
+                self._t_last = float(t[-1]) if self._t_last is None else max(self._t_last, float(t[-1]))
+        return out
+
+
+def _empty_loop(r: int) -> dict:
+    return {f: np.empty((0, r)) if f == "z" else np.empty(0) for f in LOOP_FIELDS}
+
+
+class _mapped:
+    """``with _mapped(path) as (buf, release)``: the file's bytes as a memoryview of a read-only map
+    (read into memory when it cannot be mapped, e.g. an empty file or a pipe); release(offset) gives the
+    pages before offset back (MADV_DONTNEED: read again from the page cache if touched), so a long log
+    read front to back does not stay resident."""
+
+    def __init__(self, path: str):
+        self.path = path
+
+    def __enter__(self):
+        import mmap
+
+        try:
+            f = open(self.path, "rb")
+        except OSError as exc:
+            raise LogError(f"{self.path}: cannot read the log ({exc.strerror})") from None
+        self.file, self.map, self.released = f, None, 0
+        try:
+            self.map = mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ)
+        except (OSError, ValueError):
+            try:
+                data = f.read()
+            except OSError as exc:
+                f.close()
+                raise LogError(f"{self.path}: cannot read the log ({exc.strerror})") from None
+            return memoryview(data), None
+        self.view = memoryview(self.map)
+        return self.view, self._release if hasattr(mmap, "MADV_DONTNEED") else None
+
+    def _release(self, offset: int) -> None:
+        import mmap
+
+        end = offset - offset % mmap.PAGESIZE
+        if end > self.released:
+            try:
+                self.map.madvise(mmap.MADV_DONTNEED, self.released, end - self.released)
+            except OSError:
+                return
+            self.released = end
+
+    def __exit__(self, *exc):
+        if self.map is not None:
+            self.view.release()
+            try:
+                self.map.close()
+            except BufferError:  # a view of it is still referenced (an exception's frame): let GC close it
+                pass
+        self.file.close()
+        return False
+
+
+def read_log(path) -> LogData:
+    """Read an ftstab MCAP log (complete or truncated) whole: every sample and pose. Raises LogError
+    when it is not one and DamagedLog when its bytes were altered. (:class:`LogStream` reads it in
+    bounded memory.)"""
+    stream = LogStream(path, poses=True)
+    parts = {}
+    for loops in stream.batches():
+        for name, arrays in loops.items():
+            if len(arrays["t"]):
+                parts.setdefault(name, []).append(arrays)
+    log = stream.log
+    loops = {}
+    for lp in log.info.loops:
+        got = parts.get(lp.name)
+        loops[lp.name] = ({f: np.concatenate([a[f] for a in got]) for f in got[0]} if got else _empty_loop(lp.r))
+    return replace(log, loops=loops, counts=None, t_last=None)
+
+
+def stream_metrics(path):
+    """(log, metrics) of the log at ``path`` read as it streams, in memory that does not grow with it:
+    its chunks feed ftstab_mj.metrics.MetricsStream as a run's batches do (the same bits as
+    compute_metrics of its arrays), with the recorded status (interrupted when none). The log
+    (LogData) keeps no samples. Raises LogError, DamagedLog."""
+    from ftstab_mj.metrics import MetricsStream
+    from ftstab_mj.records import INTERRUPTED
+
+    reading, stream = LogStream(path), None
+    try:
+        for loops in reading.batches():
+            stream = stream or MetricsStream(reading.info)
+            stream.update(loops)
+        log = reading.log
+        status = log.recorded["status"] if log.recorded else INTERRUPTED
+        return log, (stream or MetricsStream(log.info)).result(status)
+    except ValueError as exc:  # samples whose times are not spaced by the period (not written by a run)
+        if isinstance(exc, LogError):
+            raise
+        raise LogError(f"{path}: {exc}") from None
 
 
 def _damage_line(path: str, p: _Parser, d: _Damage) -> str:
     """One line: where the damage is and how much before it is intact."""
     counts = []
-    for cid, msgs in p.messages.items():
+    for cid, n in p.counts.items():
         topic = p.channels.get(cid, ("?",))[0]
-        if topic.startswith("/loop/") and msgs:
-            counts.append(f"{len(msgs)} samples of {topic} (up to t = {msgs[-1][1] * 1e-9:.6g} s)")
+        if topic.startswith("/loop/") and n:
+            counts.append(f"{n} samples of {topic} (up to t = {p.last_time[cid] * 1e-9:.6g} s)")
     before = "; ".join(counts) or "no sample"
     return (f"{path}: damaged log: {d.what} (byte {d.offset}); intact before it: {before}; nothing after it is "
             "used")

@@ -8,7 +8,8 @@ samples), so any difference means the log was altered or the code changed behavi
 every logged field of every loop over the logged samples (a truncated or interrupted log is a
 prefix: the scenario is re-run for as many samples as it holds), the body poses of /tf, and the status of a complete log. Floats are compared by their
 bits (so -0.0 != 0.0); non-finite values count as equal when both are non-finite (the log stores
-them as null).
+them as null). The log is read as it streams and each batch of the re-run compared as it comes
+(:class:`StreamingComparison`), so a long log is verified in memory that does not grow with it.
 """
 
 from __future__ import annotations
@@ -59,39 +60,127 @@ def _finished(log) -> bool:
     return log.complete and log.recorded is not None and log.recorded["status"] in (COMPLETED, DIVERGED)
 
 
-def compare_log(log, rerun) -> Verification:
-    """Compare ``log`` with ``rerun`` (the sim RunResult of :func:`rerun_scenario`'s scenario, run by
-    ftstab_mj.scenario.run.verify_log)."""
-    finished = _finished(log)
-    n = log.n_samples
-    problems, compared = [], 0
-    if n > rerun.n_samples:
-        problems.append(f"the log has {n} samples, the re-run only {rerun.n_samples} ({rerun.status})")
-        n = rerun.n_samples
-    if finished:
-        if log.n_samples != rerun.n_samples:
-            problems.append(f"the log has {log.n_samples} samples, the re-run {rerun.n_samples}")
-        if log.recorded["status"] != rerun.status:
-            problems.append(f"status: logged {log.recorded['status']}, re-run {rerun.status}")
-    t = log.loops[next(iter(log.loops))]["t"] if log.loops else np.empty(0)
-    for name, arrays in log.loops.items():
-        for f in LOOP_FIELDS + tuple(f for f in STAGE_FIELDS if f in arrays or f in rerun.loops[name]):
-            if f not in arrays or f not in rerun.loops[name]:
-                problems.append(f"/loop/{name} {f}: in {'the re-run' if f not in arrays else 'the log'} only")
+class StreamingComparison:
+    """The comparison of a log with the re-run of its scenario, as the re-run streams: a sink (open, write, close) of the re-run that checks
+    each of its batches against the next samples of the log, read as it streams (reader.LogStream), so
+    neither the log nor the re-run is held whole. ``log``: the reader.LogData of a first reading (its
+    n_samples, status, completeness). :meth:`verification` once the re-run is over.
+
+    Each field's first differing sample is reported (sample index, t, both values); a /tf pose is
+    compared with the re-run sample at rint(t / period) when that sample's batch passes (a log written
+    by a run has it in the same chunk), and one that comes later than its sample is a problem."""
+
+    def __init__(self, log):
+        from ftstab_mj.logs.reader import LogStream
+
+        self.log, self.period = log, log.info.period
+        self.reading = LogStream(log.path, poses="chunks")
+        self._chunks = self.reading.batches()
+        self._held = {}  # loop name -> [arrays] of log samples read but not compared yet
+        self._poses = []  # [(index (k,), t (k,), pos (k, nbody, 3), quat (k, nbody, 4))] of /tf poses not compared yet
+        self.done = 0  # re-run samples seen
+        self.compared = 0
+        self.first = {}  # (loop, field) -> problem line (the first difference only)
+        self.only = {}  # (loop, field) -> which side has it
+        self.tf = {}  # "position" | "orientation" -> problem line
+        self.late = None
+
+    def open(self, info) -> None:
+        pass
+
+    def close(self, status, metrics, message: str = "") -> None:
+        pass
+
+    def release(self) -> None:
+        """Let the log's file go (also when the re-run stopped early)."""
+        self._chunks.close()
+
+    def _pull(self) -> bool:
+        """Read the log's next chunk into the buffers; False at its end."""
+        loops = next(self._chunks, None)
+        if loops is None:
+            return False
+        for name, arrays in loops.items():
+            if len(arrays["t"]):
+                self._held.setdefault(name, []).append(arrays)
+        t, pos, quat = self.reading.chunk_poses
+        if len(t):
+            self._poses.append((np.rint(t / self.period).astype(int), t, pos, quat))
+        return True
+
+    def _take(self, name: str, m: int) -> dict | None:
+        """The log's next m samples of loop ``name`` ({field: array}), None when it has fewer."""
+        while sum(len(a["t"]) for a in self._held.get(name, [])) < m:
+            if not self._pull():
+                return None
+        parts, out, need = self._held[name], [], m
+        while need:
+            a = parts[0]
+            k = min(need, len(a["t"]))
+            out.append({f: x[:k] for f, x in a.items()})
+            if k == len(a["t"]):
+                parts.pop(0)
+            else:
+                parts[0] = {f: x[k:] for f, x in a.items()}
+            need -= k
+        return {f: np.concatenate([o[f] for o in out]) for f in out[0]}
+
+    def write(self, batch) -> None:
+        off, m = self.done, len(batch)
+        self.done += m
+        m = max(0, min(m, self.log.n_samples - off))  # the log's samples only
+        if m == 0:
+            return
+        for name, fresh in batch.loops.items():
+            logged = self._take(name, m)
+            if logged is None:
                 continue
-            a, b = arrays[f][:n], rerun.loops[name][f][:n]
-            compared += a.size
-            k = first_bit_difference(a, b)
-            if k is not None:
-                problems.append(f"/loop/{name} {f} differs first at sample {k} (t = {t[k]:.6g} s): "
-                                f"logged {a[k].tolist()!r}, re-run {b[k].tolist()!r}")
-    idx = np.rint(log.pose_t / log.info.period).astype(int)
-    keep = idx < n
-    for what, logged, fresh in (("position", log.pose_pos, rerun.body_pos), ("orientation", log.pose_quat,
-                                                                            rerun.body_quat)):
-        a, b = logged[keep], fresh[idx[keep]]
-        compared += a.size
-        k = first_bit_difference(a, b) if len(a) else None
-        if k is not None:
-            problems.append(f"/tf body {what} differs first at t = {log.pose_t[k]:.6g} s")
-    return Verification(ok=not problems, compared=compared, problems=tuple(problems))
+            for f in LOOP_FIELDS + tuple(f for f in STAGE_FIELDS if f in logged or f in fresh):
+                if f not in logged or f not in fresh:
+                    self.only.setdefault((name, f), "the re-run" if f not in logged else "the log")
+                    continue
+                a, b = logged[f], fresh[f][:m]
+                self.compared += a.size
+                if (name, f) in self.first:
+                    continue
+                k = first_bit_difference(a, b)
+                if k is not None:
+                    self.first[name, f] = (f"/loop/{name} {f} differs first at sample {off + k} (t = {logged['t'][k]:.6g} "
+                                           f"s): logged {a[k].tolist()!r}, re-run {b[k].tolist()!r}")
+        if not self._poses:
+            return
+        i, t, pos, quat = (np.concatenate(x) for x in zip(*self._poses))
+        late = i < off
+        if late.any() and self.late is None:
+            self.late = f"/tf pose at t = {t[late][0]:.6g} s comes after the samples it belongs to"
+        now = ~late & (i < off + m)
+        for what, logged, fresh in (("position", pos[now], batch.body_pos), ("orientation", quat[now], batch.body_quat)):
+            self.compared += logged.size
+            k = first_bit_difference(logged, fresh[i[now] - off]) if len(logged) else None
+            if k is not None and what not in self.tf:
+                self.tf[what] = f"/tf body {what} differs first at t = {t[now][k]:.6g} s"
+        later = i >= off + m
+        self._poses = [(i[later], t[later], pos[later], quat[later])] if later.any() else []
+
+    def verification(self, rerun) -> Verification:
+        """The outcome, given the re-run's RunResult (its status and sample count)."""
+        log, problems = self.log, []
+        finished = _finished(log)
+        if log.n_samples > rerun.n_samples:
+            problems.append(f"the log has {log.n_samples} samples, the re-run only {rerun.n_samples} ({rerun.status})")
+        if finished:
+            if log.n_samples != rerun.n_samples:
+                problems.append(f"the log has {log.n_samples} samples, the re-run {rerun.n_samples}")
+            if log.recorded["status"] != rerun.status:
+                problems.append(f"status: logged {log.recorded['status']}, re-run {rerun.status}")
+        self.release()
+        for name in [lp.name for lp in log.info.loops]:
+            for f in LOOP_FIELDS + STAGE_FIELDS:
+                if (name, f) in self.only:
+                    problems.append(f"/loop/{name} {f}: in {self.only[name, f]} only")
+                elif (name, f) in self.first:
+                    problems.append(self.first[name, f])
+        problems += [self.tf[w] for w in ("position", "orientation") if w in self.tf]
+        if self.late:
+            problems.append(self.late)
+        return Verification(ok=not problems, compared=self.compared, problems=tuple(problems))

@@ -140,7 +140,7 @@ def verify_log(log):
     compare it with the log bit for bit (a logs.verify.Verification)."""
     from ftstab_mj.errors import LogError
     from ftstab_mj.interrupts import Interrupted, last_signal
-    from ftstab_mj.logs.verify import compare_log, rerun_scenario
+    from ftstab_mj.logs.verify import StreamingComparison, rerun_scenario
     from ftstab_mj.logs.scene import check_untrusted_model
     from ftstab_mj.plants import PLANTS
     from ftstab_mj.plants.user import recorded_model
@@ -149,19 +149,23 @@ def verify_log(log):
     plant = scenario.get("plant")
     model = plant.get("model") if isinstance(plant, dict) else None
     user_model = isinstance(model, str) and model.endswith(".xml") and bool(log.info.model_xml)
-    if user_model:  # a user model is re-run from the XML the log holds, never from the file it names
-        check_untrusted_model(log.info.model_xml, f"{log.path}: /run_info model_xml")
-        with recorded_model(model, log.info.model_xml):
-            rerun = run_scenario_dict(scenario, sinks=(), source=f"{log.path} /scenario", keep_samples=True).result
-    elif model not in PLANTS:  # a log is untrusted: re-running it must not read a local file it names
-        raise LogError(f"{log.path}: /scenario plant.model: --verify re-runs the registered plants, or a user "
-                       f"model from the XML its log holds ({', '.join(PLANTS)}), found {str(model)[:80]!r}; "
-                       "re-run that scenario with ftstab run")
-    else:
-        rerun = run_scenario_dict(scenario, sinks=(), source=f"{log.path} /scenario", keep_samples=True).result
-    if rerun.status == INTERRUPTED:  # stopped by a signal: nothing to compare (not a difference)
-        raise last_signal() or Interrupted()
-    return compare_log(log, rerun)
+    comparison = StreamingComparison(log)  # the re-run compared batch by batch with the log read as it streams
+    try:
+        if user_model:  # a user model is re-run from the XML the log holds, never from the file it names
+            check_untrusted_model(log.info.model_xml, f"{log.path}: /run_info model_xml")
+            with recorded_model(model, log.info.model_xml):
+                rerun = run_scenario_dict(scenario, sinks=(comparison,), source=f"{log.path} /scenario").result
+        elif model not in PLANTS:  # a log is untrusted: re-running it must not read a local file it names
+            raise LogError(f"{log.path}: /scenario plant.model: --verify re-runs the registered plants, or a user "
+                           f"model from the XML its log holds ({', '.join(PLANTS)}), found {str(model)[:80]!r}; "
+                           "re-run that scenario with ftstab run")
+        else:
+            rerun = run_scenario_dict(scenario, sinks=(comparison,), source=f"{log.path} /scenario").result
+        if rerun.status == INTERRUPTED:  # stopped by a signal: nothing to compare (not a difference)
+            raise last_signal() or Interrupted()
+        return comparison.verification(rerun)
+    finally:
+        comparison.release()
 
 
 class ProgressSink:
