@@ -36,8 +36,8 @@ MAX_STEPS_PER_PERIOD = 10 ** 6  # physics steps per control period
 MAX_STEPS = 10 ** 9  # physics steps per run
 MAX_SWEEP_ROWS = 10 ** 5  # runs of one sweep
 LIMITS = {
-    "samples": (MAX_SAMPLES, "a run keeps every sample in memory for its metrics, ~100 B a sample and loop, "
-                             "and logs ~350 B of each (MCAP + Rerun): 1e7 samples is ~1 GB of memory and ~3.5 GB of logs"),
+    "samples": (MAX_SAMPLES, "a run logs up to ~350 B of each sample and loop (MCAP + Rerun) and its final-window "
+                             "metrics need ~6 B of each at the end: 1e7 samples is ~3.5 GB of logs and ~60 MB of memory"),
     "steps": (MAX_STEPS, "at ~3 us a physics step, MuJoCo's own cost, 1e9 steps is about an hour of computing"),
     "steps_per_period": (MAX_STEPS_PER_PERIOD, "the run loop holds the inputs of every physics step of a batch "
                                                "of periods, 32 B a step and loop"),

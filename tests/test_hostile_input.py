@@ -38,7 +38,7 @@ HOSTILE = [
     ("period-1e9", R2, None, ["sim.period=1e9", "sim.duration=1e9"], "sim.period",
      ["at most 1e6 physics steps per period", "1e+12 steps"]),
     ("duration-1e308-step-1e-7", R2, None, ["sim.duration=1e308", "sim.physics_step=1e-7", "sim.period=1e-7"],
-     "sim.duration", ["at most 1e7 control samples per run", "~1 GB of memory"]),
+     "sim.duration", ["at most 1e7 control samples per run", "~3.5 GB of logs"]),
     ("duration-1e300", R2, None, ["sim.duration=1e300"], "sim.duration", ["at most 1e7 control samples"]),
     ("steps-per-run", R2, None, ["sim.duration=9000", "sim.physics_step=1e-6"], "sim.duration",
      ["at most 1e9 physics steps per run", "about an hour"]),

@@ -65,7 +65,9 @@ class LogData:
     "metrics"}) or None when the run did not finish; complete: the file ends with its footer;
     bytes_read / bytes_total: how much of the file was usable; encoding: "protobuf" | "json" (the
     loop channels); crc_checked: every chunk carried a CRC and it held; notes: other findings
-    (e.g. damage outside the samples), each one line.
+    (e.g. damage outside the samples), each one line. A log read as it streams (:class:`LogStream`)
+    holds no sample: loops {name: {}}, no poses (unless asked), counts {loop name: samples} and
+    t_last (s, the last sample's time) instead.
     """
 
     path: str
