@@ -52,9 +52,14 @@ def test_the_example_script_runs(tmp_path):
 def test_run_and_replay_without_samples_give_the_same_metrics(tmp_path):
     import ftstab_mj
 
-    kept = ftstab_mj.run("cart_r2_robust", out=tmp_path, overrides={"sim.duration": 0.5})
+    from ftstab_mj.logs import McapSink
+    from ftstab_mj.scenario.run import run_scenario
+
+    kept = ftstab_mj.run("cart_r2_robust", overrides={"sim.duration": 0.5})
     bare = ftstab_mj.run("cart_r2_robust", overrides={"sim.duration": 0.5}, keep_samples=False)
     assert bare.samples is None and bare.body_pos is None and bare.metrics == kept.metrics
-    whole, streamed = ftstab_mj.replay(kept.logs["mcap"]), ftstab_mj.replay(kept.logs["mcap"], keep_samples=False)
+    log = tmp_path / "run.mcap"  # (an MCAP log only: no Rerun recording in this process)
+    run_scenario(ftstab_mj.load_scenario("cart_r2_robust", {"sim.duration": 0.5}), [McapSink(log)])
+    whole, streamed = ftstab_mj.replay(log), ftstab_mj.replay(log, keep_samples=False)
     assert len(whole.samples["cart"]["t"]) == 500 and streamed.samples is None and streamed.body_pos is None
     assert streamed.metrics == whole.metrics == kept.metrics and streamed.status == whole.status == "completed"
