@@ -533,22 +533,25 @@ def cmd_sweep(args) -> int:
 
     from ftstab_mj.scenario.shipped import find_sweep
     from ftstab_mj.sweep import expand, load_sweep, run_sweep
+    from ftstab_mj.sweep.engine import started_ahead
     from ftstab_mj.sweep.runner import prepare
 
-    sweep = load_sweep(find_sweep(args.sweep))
-    rows = expand(sweep)
-    out = Path(args.out or Path("runs") / sweep.name)
-    # every input check, every row validated, before any run or file
-    task, identity = prepare(sweep, rows, args.set, out / "logs" if args.logs else None)
     engine = args.engine or ("dask" if args.workers > 1 or args.scheduler else "serial")
     if engine == "serial" and (args.workers > 1 or args.scheduler):
         raise UsageError("--engine serial: expected no --workers/--scheduler (one process runs everything)")
     if args.scheduler and engine != "dask":
         raise UsageError(f"--scheduler: expected --engine dask, found --engine {engine}")
-    print(_header(sweep.name, sweep.description, args.set))
-    print(f"  base {sweep.scenario}, {len(rows)} runs -> {out}")
-    outcome = run_sweep(sweep.name, rows, task, out, identity, engine=engine, workers=args.workers,
-                        scheduler=args.scheduler, resume=args.resume, fmt=args.format)
+    sweep = load_sweep(find_sweep(args.sweep))
+    rows = expand(sweep)
+    out = Path(args.out or Path("runs") / sweep.name)
+    # a Dask cluster starts while the rows are checked; not for --resume, which may have nothing left to run
+    with started_ahead("serial" if args.resume else engine, args.workers, args.scheduler):
+        # every input check, every row validated, before any run or file
+        task, identity = prepare(sweep, rows, args.set, out / "logs" if args.logs else None)
+        print(_header(sweep.name, sweep.description, args.set))
+        print(f"  base {sweep.scenario}, {len(rows)} runs -> {out}")
+        outcome = run_sweep(sweep.name, rows, task, out, identity, engine=engine, workers=args.workers,
+                            scheduler=args.scheduler, resume=args.resume, fmt=args.format)
     counts = ", ".join(f"{n} {s}" for s, n in sorted(outcome.statuses.items()))
     print(f"{outcome.done}/{outcome.total} runs in the table ({counts}); "
           f"{outcome.ran} ran now in {outcome.elapsed_s:.1f} s")

@@ -157,6 +157,9 @@ def test_interrupted_sweep_resumes_without_rerunning_finished_rows(tmp_path):
     (lambda s: s, ("--set", "sim.duration=-1"),
      r"cart_r2_robust.toml \(--set sim.duration=-1\): sim.duration: expected a number > 0"),
     (lambda s: s, ("--engine", "serial", "--workers", "2"), r"--engine serial: expected no --workers"),
+    # the same with a local Dask cluster starting meanwhile (engine.started_ahead): still one line, nothing written
+    (lambda s: s.replace("1e-3, 2e-3, 3e-3", "1e-3, 1.5e-3"), ("--workers", "2"),
+     r"small.toml \(row 4: sim.period = 0.0015\): sim.period: expected an integer multiple"),
     (lambda s: s.replace("samples = 2", "samples = 0"), (), r"small.toml: samples: expected an integer >= 1"),
 ])
 def test_bad_input_is_one_line_and_exit_2(tmp_path, edit, args, message):

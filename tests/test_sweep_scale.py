@@ -7,9 +7,12 @@ import subprocess
 import sys
 
 from conftest import ROOT
-from ftstab_mj.sweep import expand, load_sweep
-from ftstab_mj.sweep import runner
+from ftstab_mj.sweep import engine, expand, load_sweep, runner
+from ftstab_mj.sweep.run import run_sweep
 from ftstab_mj.sweep.runner import ScenarioTask, prepare
+from ftstab_mj.sweep.table import read_table
+from tests.sweep_chain import ChainTask
+from tests.test_sweep_engine import CHAIN_SWEEP, results, write_sweep
 
 
 def cart_sweep(tmp_path, samples=3):
@@ -71,3 +74,19 @@ def test_workers_are_forked_only_from_a_single_threaded_process_with_no_simulati
     assert out.returncode == 0, out.stderr
     expected = ["fork", "spawn", "spawn"] if sys.platform.startswith("linux") else ["spawn"] * 3
     assert out.stdout.split() == expected
+
+
+def test_a_dask_cluster_started_ahead_is_taken_over_by_the_sweep_or_closed_at_the_end_of_the_block(tmp_path):
+    rows = expand(load_sweep(write_sweep(tmp_path, CHAIN_SWEEP)))
+    serial = run_sweep("s", rows, ChainTask(), tmp_path / "serial", {}, progress=None)
+    with engine.started_ahead("dask", 1):
+        started = engine._AHEAD[(1, None)]
+        ahead = run_sweep("s", rows, ChainTask(), tmp_path / "ahead", {}, engine="dask", workers=1, progress=None)
+        assert (1, None) not in engine._AHEAD  # taken over by the sweep, which closed it
+        assert started.result()[0].status == "closed"
+    assert results(read_table(ahead.table)) == results(read_table(serial.table))
+    with engine.started_ahead("dask", 1):  # e.g. a row fails validation: the sweep never runs
+        unused = engine._AHEAD[(1, None)]
+    client, cluster = unused.result()
+    assert client.status == "closed" and cluster.status.name == "closed"
+    assert engine._AHEAD == {}

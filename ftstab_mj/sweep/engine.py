@@ -37,10 +37,15 @@ from __future__ import annotations
 import time
 import uuid
 from collections.abc import Callable, Iterable, Iterator
+from contextlib import contextmanager
+from typing import TYPE_CHECKING
 
 from ftstab_mj.callback import ONE_RUN
 from ftstab_mj.errors import EngineError
 from ftstab_mj.records import FAILED
+
+if TYPE_CHECKING:
+    from concurrent.futures import Future
 
 ENGINES = ("serial", "processes", "dask")
 CHUNKS_PER_WORKER = 4  # enough chunks for the workers to even out rows of unequal cost
@@ -130,26 +135,71 @@ def _processes(items, task, workers) -> Iterator[tuple[int, dict | None]]:
         pool.shutdown(wait=True, cancel_futures=True)
 
 
-def _dask(items, task, workers, scheduler) -> Iterator[tuple[int, dict | None]]:
+def _dask_connect(workers: int, scheduler: str | None):
+    """(client, local cluster or None): a client of the scheduler at ``scheduler``, or of a new
+    LocalCluster of ``workers`` single-threaded processes. EngineError when it cannot be reached."""
     import logging
 
-    from distributed import Client, LocalCluster, as_completed
+    from distributed import Client, LocalCluster
 
     cluster = None
     try:
         if scheduler:
-            client = Client(scheduler, timeout="10s")
-        else:
-            # dashboard_address ":0": its HTTP server on a free port (None would still take 8787, and
-            # warn when another cluster holds it)
-            cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                                   dashboard_address=":0", silence_logs=logging.ERROR)
-            client = Client(cluster)
+            return Client(scheduler, timeout="10s"), None
+        # dashboard_address ":0": its HTTP server on a free port (None would still take 8787, and warn
+        # when another cluster holds it). preload: each worker imports what a row needs as it starts
+        # (runner.dask_setup), not when its first row arrives
+        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=":0",
+                               silence_logs=logging.ERROR, preload=["ftstab_mj.sweep.runner"])
+        return Client(cluster), cluster
     except (OSError, TimeoutError) as exc:
         if cluster is not None:
             cluster.close()
         where = f"the scheduler at {scheduler}" if scheduler else f"a local cluster of {workers} workers"
         raise EngineError(f"--scheduler: expected a reachable Dask scheduler, could not reach {where} ({exc})") from None
+
+
+def _dask_close(client, cluster) -> None:
+    client.close()
+    if cluster is not None:
+        cluster.close()
+
+
+_AHEAD: dict[tuple, Future] = {}  # (workers, scheduler) -> the Dask connection started_ahead() is making
+
+
+@contextmanager
+def started_ahead(engine: str, workers: int = 1, scheduler: str | None = None):
+    """Start ``engine`` in a background thread while the block runs, so that its start-up overlaps
+    what the block does first (``ftstab sweep`` validates the rows); :func:`execute` with the same
+    engine inside the block takes it over (and reports its EngineError, if any, as it would have).
+
+    Only the Dask engine starts ahead: a LocalCluster's worker processes take ~1 s of wall to start,
+    a scheduler a round trip to answer. Serial needs nothing, and process workers are forked when the
+    rows run so that they inherit what was validated. What was started and not taken over is closed
+    at the end of the block.
+    """
+    if engine != "dask":
+        yield
+        return
+    from concurrent.futures import ThreadPoolExecutor
+
+    key = (workers, scheduler)
+    starter = ThreadPoolExecutor(1, thread_name_prefix="ftstab-dask-start")
+    _AHEAD[key] = started = starter.submit(_dask_connect, workers, scheduler)
+    try:
+        yield
+    finally:
+        starter.shutdown(wait=True)
+        if _AHEAD.pop(key, None) is started and started.exception() is None:  # not taken over: close it
+            _dask_close(*started.result())
+
+
+def _dask(items, task, workers, scheduler) -> Iterator[tuple[int, dict | None]]:
+    from distributed import as_completed
+
+    ahead = _AHEAD.pop((workers, scheduler), None)
+    client, cluster = ahead.result() if ahead is not None else _dask_connect(workers, scheduler)
     tag = uuid.uuid4().hex[:8]  # keys unique to this sweep on a shared scheduler
     try:
         if scheduler:  # the cluster's workers now (more may join later)
@@ -163,6 +213,4 @@ def _dask(items, task, workers, scheduler) -> Iterator[tuple[int, dict | None]]:
                 yield from fut.result()
             fut.release()
     finally:
-        client.close()
-        if cluster is not None:
-            cluster.close()
+        _dask_close(client, cluster)

@@ -77,6 +77,23 @@ class ScenarioTask:
         return {"status": status, "error": "" if status == COMPLETED else run.result.message, "metrics": run.metrics}
 
 
+def warm() -> None:
+    """Import what running a row needs (MuJoCo, the run loop, the metrics) and load the native kernel:
+    a Dask worker does it as it starts (:func:`dask_setup`), while the parent validates the rows,
+    instead of when its first row arrives."""
+    import ftstab_mj.metrics  # noqa: F401
+    import ftstab_mj.scenario.run  # noqa: F401
+    import ftstab_mj.sim  # noqa: F401
+    from ftstab_mj.native import available
+
+    available()
+
+
+def dask_setup(worker) -> None:
+    """Dask's preload hook: the sweep engine starts its LocalCluster with ``preload=[this module]``."""
+    warm()
+
+
 def prepare(sweep: Sweep, rows, overrides=(), logs_dir=None) -> tuple[ScenarioTask, dict]:
     """The task of every row and the identity of the sweep (the base every run starts from).
 
