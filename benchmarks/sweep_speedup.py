@@ -1,24 +1,31 @@
-"""Speed-up of `ftstab sweep` from 1 to 2 workers, and the set-up cost of one sweep row.
+"""Speed-up of `ftstab sweep` from 1 to 2 workers, the set-up cost of one sweep row, and the fixed costs.
 
-    python -m benchmarks.sweep_speedup [--case rows|periods] [--repeat 3] [--no-external]
+    python -m benchmarks.sweep_speedup [--case rows|periods] [--samples N] [--repeat 3] [--no-external]
 
 Cases:
-- ``rows`` (default, issue 16): 200 rows of 1 s simulated of the r = 2 robust cart, z0[0] drawn in
-  [-1, 1] m: ~4 ms of CPU a row, so engine start-up and per-task costs weigh as much as the runs.
+- ``rows`` (default, issue 16): ``--samples`` rows (default 200) of 1 s simulated of the r = 2 robust
+  cart, z0[0] drawn in [-1, 1] m: ~3 ms of CPU a row, so engine start-up and per-task costs weigh
+  as much as the runs.
 - ``periods`` (issue 7): the 7 control periods of robust_accuracy_vs_period.toml at 20 s, physics step
   0.1 ms, times 8 initial positions: 56 rows of ~0.3 s of CPU each.
 
 First the set-up cost of a row, in this process: CPU per row of 1 s and of 2 s rows (the task the
-engines call, 40 rows each, alternated, median of 5), extrapolated linearly to a 0 s row. Then each
-configuration runs the real command in a fresh process (engine start-up included), alternately,
---repeat times: serial, 2 dask workers (LocalCluster), 2 processes, and 2 workers of an external
-``dask scheduler`` started once by this script (``dask worker --nworkers 2 --nthreads 1``: start-up
-paid once, as on a standing cluster). Prints median and range of the wall times, the speed-up of the
-medians over serial, the 1-minute load average before each run, and checks that every configuration
-wrote the same table. The machine's other load counts: read the load column.
+engines call, 40 rows each, alternated, median of 5), extrapolated linearly to a 0 s row, both for a
+row validated by prepare() in this process (serial, forked workers) and for one the worker validates
+again (spawned and Dask workers). Then the fixed costs of the command, in a fresh process (median of
+3): interpreter, imports, load + expand + prepare, writing the table, and for Dask ``import
+distributed`` and a LocalCluster of 2 workers started and closed; from them and the rows' CPU, the
+best speed-up 2 workers could give if starting them cost nothing. Then each configuration runs the
+real command in a fresh process (wall from the command's start: engine start-up included),
+alternately, --repeat times: serial, 2 dask workers (LocalCluster), 2 processes, and 2 workers of an
+external ``dask scheduler`` started once by this script (``dask worker --nworkers 2 --nthreads 1``:
+start-up paid once, as on a standing cluster). Prints median and range of the wall times, the
+speed-up of the medians over serial, the 1-minute load average before each run, and checks that
+every configuration wrote the same table. The machine's other load counts: read the load column.
 """
 
 import argparse
+import json
 import os
 import statistics
 import subprocess
@@ -32,7 +39,7 @@ from ftstab_mj.sweep.table import VARYING_COLUMNS, read_table
 ROOT = Path(__file__).resolve().parent.parent
 BASE = ROOT / "scenarios" / "cart_r2_robust.toml"
 CASES = {
-    "rows": '''samples = 200
+    "rows": '''samples = {samples}
 [set]
 "sim.duration" = {duration}
 [draw]
@@ -50,35 +57,88 @@ CASES = {
 }
 
 
-def sweep_file(folder: Path, case: str, duration: float = 1.0) -> Path:
+def sweep_file(folder: Path, case: str, duration: float = 1.0, samples: int = 200) -> Path:
     path = folder / f"{case}.toml"
     path.write_text(f'name = "{case}"\ndescription = "benchmark"\nscenario = "{BASE}"\nseed = 1\n'
-                    + CASES[case].format(duration=duration))
+                    + CASES[case].format(duration=duration, samples=samples))
     return path
 
 
-def setup_cost(folder: Path) -> tuple[float, float, float]:
-    """(ms of CPU per 1 s row, per 2 s row, extrapolated to a 0 s row): the task as the engines call it."""
+def setup_cost(folder: Path) -> dict[str, tuple[float, float, float]]:
+    """{"prepared" | "validated": (ms of CPU per 1 s row, per 2 s row, extrapolated to a 0 s row)}: the
+    task as the engines call it, on rows prepare() validated in this process (serial engine, forked
+    workers) and on rows the task validates itself (spawned and Dask workers)."""
     from ftstab_mj.sweep import expand, load_sweep
     from ftstab_mj.sweep.engine import run_chunk
     from ftstab_mj.sweep.runner import prepare
 
-    tasks = {}
+    sweeps = {}
     for d in (1.0, 2.0):
         sw = load_sweep(sweep_file(folder, "rows", d))
         rows = expand(sw)[:40]
         task, _ = prepare(sw, rows)
-        items = [(r.index, r.params) for r in rows]
-        run_chunk(task, items[:2])  # warm: imports, the certificate, the caches of the first run
-        tasks[d] = (task, items)
-    per_row = {1.0: [], 2.0: []}
+        run_chunk(task, [(r.index, r.params) for r in rows[:2]])  # warm: imports, the certificate, the caches
+        sweeps[d] = (sw, rows)
+    per_row = {(kind, d): [] for kind in ("prepared", "validated") for d in (1.0, 2.0)}
     for _ in range(5):
-        for d, (task, items) in tasks.items():
-            t0 = time.process_time()
-            run_chunk(task, items)
-            per_row[d].append((time.process_time() - t0) / len(items) * 1e3)
-    c1, c2 = statistics.median(per_row[1.0]), statistics.median(per_row[2.0])
-    return c1, c2, 2 * c1 - c2
+        for kind in ("prepared", "validated"):
+            for d, (sw, rows) in sweeps.items():
+                task, _ = prepare(sw, rows)
+                if kind == "validated":
+                    task = type(task)(task.base, task.source)  # no prepared scenarios: each row validated again
+                t0 = time.process_time()
+                run_chunk(task, [(r.index, r.params) for r in rows])
+                per_row[(kind, d)].append((time.process_time() - t0) / len(rows) * 1e3)
+    out = {}
+    for kind in ("prepared", "validated"):
+        c1, c2 = statistics.median(per_row[(kind, 1.0)]), statistics.median(per_row[(kind, 2.0)])
+        out[kind] = (c1, c2, 2 * c1 - c2)
+    return out
+
+
+# The fixed costs of the command, phase by phase, in a fresh process: (CPU s, wall s) of each phase.
+PHASES = r"""
+import json, sys, time
+marks = [("start", time.process_time(), time.perf_counter())]
+def mark(name):
+    marks.append((name, time.process_time(), time.perf_counter()))
+import ftstab_mj.cli, ftstab_mj.metrics, ftstab_mj.scenario.run, ftstab_mj.sim, ftstab_mj.sweep.runner
+mark("imports")
+from ftstab_mj.sweep import expand, load_sweep
+from ftstab_mj.sweep.runner import prepare
+sweep = load_sweep(sys.argv[1])
+rows = expand(sweep)
+prepare(sweep, rows)
+mark("load, expand, prepare")
+from ftstab_mj.sweep.table import read_journal, write_table
+write_table(list(read_journal(__import__("pathlib").Path(sys.argv[2])).values()), __import__("pathlib").Path(sys.argv[3]))
+mark("write the table")
+import distributed
+mark("import distributed")
+if __name__ == "__main__":
+    from ftstab_mj.sweep.engine import _dask_close, _dask_connect
+    client, cluster = _dask_connect(2, None)
+    mark("LocalCluster of 2 up")
+    _dask_close(client, cluster)
+    mark("LocalCluster closed")
+print(json.dumps([(b[0], b[1] - a[1], b[2] - a[2]) for a, b in zip(marks, marks[1:])]))
+"""
+
+
+def fixed_costs(folder: Path, sweep: Path, journal: Path) -> dict[str, tuple[float, float]]:
+    """{phase: (median CPU s, median wall s)} of 3 fresh processes; "interpreter" is `python -c pass` (wall)."""
+    script = folder / "phases.py"
+    script.write_text(PHASES)
+    runs = []
+    for _ in range(3):
+        t0 = time.perf_counter()
+        subprocess.run([sys.executable, "-c", "pass"], check=True)
+        start = time.perf_counter() - t0
+        out = subprocess.run([sys.executable, str(script), str(sweep), str(journal), str(folder / "t.parquet")],
+                             cwd=ROOT, capture_output=True, text=True, check=True)
+        runs.append([("interpreter", start, start)] + [tuple(p) for p in json.loads(out.stdout.strip().splitlines()[-1])])
+    return {name: (statistics.median(r[k][1] for r in runs), statistics.median(r[k][2] for r in runs))
+            for k, (name, _, _) in enumerate(runs[0])}
 
 
 def start_external(folder: Path):
@@ -105,15 +165,29 @@ def start_external(folder: Path):
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--case", choices=tuple(CASES), default="rows")
+    ap.add_argument("--samples", type=int, default=200, help="rows of the rows case (default 200)")
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--no-external", action="store_true", help="skip the external dask scheduler")
     args = ap.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
-        c1, c2, c0 = setup_cost(tmp)
-        print(f"CPU per row: {c1:.2f} ms (1 s rows), {c2:.2f} ms (2 s rows); set-up of a row (0 s extrapolated): "
-              f"{c0:.2f} ms   (load: {os.getloadavg()[0]:.2f})", flush=True)
-        sweep = sweep_file(tmp, args.case)
+        costs = setup_cost(tmp)
+        for kind, (c1, c2, c0) in costs.items():
+            print(f"CPU per row, {kind:<9}: {c1:.2f} ms (1 s rows), {c2:.2f} ms (2 s rows); set-up of a row "
+                  f"(0 s extrapolated): {c0:.2f} ms   (load: {os.getloadavg()[0]:.2f})", flush=True)
+        sweep = sweep_file(tmp, args.case, samples=args.samples)
+        if args.case == "rows":  # the fixed costs, and what they leave of the speed-up
+            ref = tmp / "ref"
+            subprocess.run([sys.executable, "-m", "ftstab_mj", "sweep", str(sweep), "--out", str(ref)], cwd=ROOT,
+                           capture_output=True, check=True)
+            phases = fixed_costs(tmp, sweep, ref / f"{args.case}.jsonl")
+            print(f"fixed costs of the command, fresh process, median of 3 (load: {os.getloadavg()[0]:.2f}):")
+            for name, (cpu, wall) in phases.items():
+                print(f"  {name:<24} {cpu:6.3f} s CPU {wall:6.3f} s wall")
+            fixed = sum(phases[k][0] for k in ("interpreter", "imports", "load, expand, prepare", "write the table"))
+            rows_cpu = args.samples * costs["prepared"][0] / 1e3
+            print(f"  serial = {fixed:.2f} s fixed + {rows_cpu:.2f} s of rows: 2 workers started for free and "
+                  f"splitting the rows evenly give at best {(fixed + rows_cpu) / (fixed + rows_cpu / 2):.2f}x", flush=True)
         configs = {
             "serial": ("--workers", "1"),
             "dask, 2 workers": ("--workers", "2"),
