@@ -20,13 +20,15 @@ real command in a fresh process (wall from the command's start: engine start-up 
 alternately, --repeat times: serial, 2 dask workers (LocalCluster), 2 processes, and 2 workers of an
 external ``dask scheduler`` started once by this script (``dask worker --nworkers 2 --nthreads 1``:
 start-up paid once, as on a standing cluster). Prints median and range of the wall times, the
-speed-up of the medians over serial, the 1-minute load average before each run, and checks that
-every configuration wrote the same table. The machine's other load counts: read the load column.
+speed-up of the medians over serial, the CPU of the command and its own workers (what a
+configuration costs whatever the machine's other load), the 1-minute load average before each run,
+and checks that every configuration wrote the same table. The machine's other load counts: read the load column.
 """
 
 import argparse
 import json
 import os
+import resource
 import statistics
 import subprocess
 import sys
@@ -198,19 +200,24 @@ def main():
             address, procs = start_external(tmp)
             configs["external dask, 2 workers"] = ("--scheduler", address)
         try:
-            walls, tables = {}, {}
+            walls, cpus, tables = {}, {}, {}
             for rep in range(args.repeat):
                 for k, (name, extra) in enumerate(configs.items()):
                     out = tmp / f"{rep}-{k}"
                     load = os.getloadavg()[0]
+                    r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
                     t0 = time.perf_counter()
                     proc = subprocess.run([sys.executable, "-m", "ftstab_mj", "sweep", str(sweep), "--out", str(out),
                                            *extra], cwd=ROOT, capture_output=True, text=True)
                     wall = time.perf_counter() - t0
+                    r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+                    # CPU of the command and of the workers it started (an external cluster's is not counted)
+                    cpu = (r1.ru_utime - r0.ru_utime) + (r1.ru_stime - r0.ru_stime)
                     if proc.returncode != 0:
                         sys.exit(f"{name}: exit {proc.returncode}: {proc.stderr.strip().splitlines()[-1]}")
-                    print(f"{name:<26} {wall:6.2f} s   (load before: {load:.2f})", flush=True)
+                    print(f"{name:<26} {wall:6.2f} s wall {cpu:6.2f} s CPU   (load before: {load:.2f})", flush=True)
                     walls.setdefault(name, []).append(wall)
+                    cpus.setdefault(name, []).append(cpu)
                     table = read_table(out / f"{args.case}.parquet")
                     tables[name] = {c: v for c, v in table.items() if c not in VARYING_COLUMNS}
         finally:
@@ -222,7 +229,8 @@ def main():
         print(f"\n{n} runs, median [min, max] of {args.repeat}, on {os.cpu_count()} cores:")
         for name, ws in walls.items():
             med = statistics.median(ws)
-            print(f"  {name:<26} {med:6.2f} s [{min(ws):.2f}, {max(ws):.2f}]   speed-up {serial / med:4.2f}")
+            print(f"  {name:<26} {med:6.2f} s [{min(ws):.2f}, {max(ws):.2f}]   speed-up {serial / med:4.2f}   "
+                  f"CPU {statistics.median(cpus[name]):6.2f} s")
         same = all(t == tables["serial"] for t in tables.values())
         print(f"  tables identical across engines: {'yes' if same else 'NO'}")
 
