@@ -22,7 +22,8 @@ external ``dask scheduler`` started once by this script (``dask worker --nworker
 start-up paid once, as on a standing cluster). Prints median and range of the wall times, the
 speed-up of the medians over serial, the CPU of the command and its own workers (what a
 configuration costs whatever the machine's other load), the 1-minute load average before each run,
-and checks that every configuration wrote the same table. The machine's other load counts: read the load column.
+and checks that every configuration wrote the same table. The machine's other load counts: before each repeat,
+:func:`machine_parallelism` measures what 2 processes can gain at all at that moment.
 """
 
 import argparse
@@ -164,6 +165,32 @@ def start_external(folder: Path):
     return address, (worker, sched)
 
 
+def _spin(n: int) -> None:
+    x = 0
+    for i in range(n):
+        x += i
+
+
+def machine_parallelism(n: int = 4_000_000) -> float:
+    """Wall of some pure-Python work in 1 process / the same work split over 2 (forked) processes: the
+    speed-up this machine gives 2 workers right now. It is ~2 on 2 idle cores, and ~1 when the other
+    sessions keep both busy: Linux shares the CPU between sessions (autogroups) before processes, so
+    a command's extra processes add CPU only while another session leaves a core idle."""
+    import multiprocessing
+
+    t0 = time.perf_counter()
+    _spin(2 * n)
+    one = time.perf_counter() - t0
+    ctx = multiprocessing.get_context("fork")
+    t0 = time.perf_counter()
+    procs = [ctx.Process(target=_spin, args=(n,)) for _ in range(2)]
+    for p in procs:
+        p.start()
+    for p in procs:
+        p.join()
+    return one / (time.perf_counter() - t0)
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--case", choices=tuple(CASES), default="rows")
@@ -201,7 +228,11 @@ def main():
             configs["external dask, 2 workers"] = ("--scheduler", address)
         try:
             walls, cpus, tables = {}, {}, {}
+            capacity = []
             for rep in range(args.repeat):
+                capacity.append(machine_parallelism())
+                print(f"machine: pure-Python work on 2 processes x{capacity[-1]:.2f} faster than on 1 "
+                      f"(load: {os.getloadavg()[0]:.2f})", flush=True)
                 for k, (name, extra) in enumerate(configs.items()):
                     out = tmp / f"{rep}-{k}"
                     load = os.getloadavg()[0]
@@ -231,6 +262,8 @@ def main():
             med = statistics.median(ws)
             print(f"  {name:<26} {med:6.2f} s [{min(ws):.2f}, {max(ws):.2f}]   speed-up {serial / med:4.2f}   "
                   f"CPU {statistics.median(cpus[name]):6.2f} s")
+        print(f"  the machine meanwhile: 2 processes x{statistics.median(capacity):.2f} faster than 1 on pure-Python "
+              f"work (median; range {min(capacity):.2f} to {max(capacity):.2f})")
         same = all(t == tables["serial"] for t in tables.values())
         print(f"  tables identical across engines: {'yes' if same else 'NO'}")
 

@@ -6,6 +6,8 @@
 import subprocess
 import sys
 
+import pytest
+
 from conftest import ROOT
 from ftstab_mj.sweep import engine, expand, load_sweep, runner
 from ftstab_mj.sweep.run import run_sweep
@@ -90,3 +92,23 @@ def test_a_dask_cluster_started_ahead_is_taken_over_by_the_sweep_or_closed_at_th
     client, cluster = unused.result()
     assert client.status == "closed" and cluster.status.name == "closed"
     assert engine._AHEAD == {}
+
+
+FORKED_ROWS = """
+import json, sys
+from ftstab_mj.sweep.engine import execute, start_method
+from tests.sweep_chain import ChainTask
+items = [(i, (("period", 0.01 * (i + 1)),)) for i in range(int(sys.argv[1]))]
+assert start_method() == "fork"
+out = {i: r["metrics"] for i, r in execute(items, ChainTask(), "processes", workers=2)}
+print(json.dumps(out == {i: r["metrics"] for i, r in execute(items, ChainTask(), "serial")}))
+"""
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="workers are forked on Linux only (spawned elsewhere)")
+def test_forked_workers_after_the_first_row_run_in_the_parent_give_the_serial_results():
+    for n in (1, 5):  # one row: the parent's only; five: the first here, four in forked workers
+        out = subprocess.run([sys.executable, "-c", FORKED_ROWS, str(n)], capture_output=True, text=True, cwd=ROOT,
+                             timeout=120)
+        assert out.returncode == 0, out.stderr
+        assert out.stdout.split() == ["true"]

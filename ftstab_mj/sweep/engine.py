@@ -122,7 +122,15 @@ def _processes(items, task, workers) -> Iterator[tuple[int, dict | None]]:
     import multiprocessing
     from concurrent.futures import ProcessPoolExecutor, as_completed
 
-    # with "fork", the pool forks all its workers at the first submit, before it starts its own thread
+    if start_method() == "fork":
+        # the first row runs here, before the fork: what each worker would do at its first row (lazy
+        # imports, the native kernel, the per-process caches: ~0.1 s of CPU) is done once and inherited
+        (i, params), items = items[0], items[1:]
+        yield i, guarded(task, i, params)
+        if not items:
+            return
+    # checked again: a run may leave a thread behind (a log sink's), and then workers are spawned.
+    # With "fork", the pool forks all its workers at the first submit, before it starts its own thread
     pool = ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context(start_method()))
     try:
         futures = {pool.submit(run_chunk, task, chunk): chunk for chunk in chunks(items, workers)}
