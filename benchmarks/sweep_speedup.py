@@ -102,29 +102,38 @@ def setup_cost(folder: Path) -> dict[str, tuple[float, float, float]]:
 # The fixed costs of the command, phase by phase, in a fresh process: (CPU s, wall s) of each phase.
 PHASES = r"""
 import json, sys, time
-marks = [("start", time.process_time(), time.perf_counter())]
-def mark(name):
-    marks.append((name, time.process_time(), time.perf_counter()))
-import ftstab_mj.cli, ftstab_mj.metrics, ftstab_mj.scenario.run, ftstab_mj.sim, ftstab_mj.sweep.runner
-mark("imports")
-from ftstab_mj.sweep import expand, load_sweep
-from ftstab_mj.sweep.runner import prepare
-sweep = load_sweep(sys.argv[1])
-rows = expand(sweep)
-prepare(sweep, rows)
-mark("load, expand, prepare")
-from ftstab_mj.sweep.table import read_journal, write_table
-write_table(list(read_journal(__import__("pathlib").Path(sys.argv[2])).values()), __import__("pathlib").Path(sys.argv[3]))
-mark("write the table")
-import distributed
-mark("import distributed")
-if __name__ == "__main__":
+
+
+def main():
+    marks = [("start", time.process_time(), time.perf_counter())]
+
+    def mark(name):
+        marks.append((name, time.process_time(), time.perf_counter()))
+
+    import ftstab_mj.cli, ftstab_mj.metrics, ftstab_mj.scenario.run, ftstab_mj.sim, ftstab_mj.sweep.runner
+    mark("imports")
+    from pathlib import Path
+    from ftstab_mj.sweep import expand, load_sweep
+    from ftstab_mj.sweep.runner import prepare
+    sweep = load_sweep(sys.argv[1])
+    rows = expand(sweep)
+    prepare(sweep, rows)
+    mark("load, expand, prepare")
+    from ftstab_mj.sweep.table import read_journal, write_table
+    write_table(list(read_journal(Path(sys.argv[2])).values()), Path(sys.argv[3]))
+    mark("write the table")
+    import distributed
+    mark("import distributed")
     from ftstab_mj.sweep.engine import _dask_close, _dask_connect
     client, cluster = _dask_connect(2, None)
     mark("LocalCluster of 2 up")
     _dask_close(client, cluster)
     mark("LocalCluster closed")
-print(json.dumps([(b[0], b[1] - a[1], b[2] - a[2]) for a, b in zip(marks, marks[1:])]))
+    print(json.dumps([(b[0], b[1] - a[1], b[2] - a[2]) for a, b in zip(marks, marks[1:])]))
+
+
+if __name__ == "__main__":  # a spawned Dask worker imports this file again: it must do nothing then
+    main()
 """
 
 
