@@ -127,9 +127,18 @@ def main():
     from ftstab_mj.sweep.engine import _dask_close, _dask_connect
     client, cluster = _dask_connect(2, None)
     mark("LocalCluster of 2 up")
+    started = sorted(client.run(worker_cpu).values())  # the workers' own CPU, not in this process's
     _dask_close(client, cluster)
     mark("LocalCluster closed")
-    print(json.dumps([(b[0], b[1] - a[1], b[2] - a[2]) for a, b in zip(marks, marks[1:])]))
+    phases = [(b[0], b[1] - a[1], b[2] - a[2]) for a, b in zip(marks, marks[1:])]
+    print(json.dumps(phases + [("a Dask worker's own start", started[-1], 0.0)]))
+
+
+def worker_cpu():
+    import resource
+
+    r = resource.getrusage(resource.RUSAGE_SELF)
+    return r.ru_utime + r.ru_stime
 
 
 if __name__ == "__main__":  # a spawned Dask worker imports this file again: it must do nothing then
