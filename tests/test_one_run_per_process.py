@@ -136,8 +136,9 @@ def test_sweep_rows_run_in_threads_of_one_process_give_the_serial_results(tmp_pa
 
 @pytest.fixture
 def dask_cluster(tmp_path):
-    """A real `dask scheduler` and one `dask worker --nthreads 2` (the default of `dask worker` is
-    several threads), as a user starts them; yields the scheduler address."""
+    """A real `dask scheduler` and `dask worker --nworkers 2 --nthreads 2`: 2 worker processes (as the
+    README says to start them) of 2 threads each (the default of `dask worker` is several threads),
+    as a user starts them; yields the scheduler address."""
     env = dict(os.environ)
     env["PYTHONPATH"] = str(ROOT) + os.pathsep + env.get("PYTHONPATH", "")
     dask = os.path.join(os.path.dirname(sys.executable), "dask")
@@ -154,13 +155,13 @@ def dask_cluster(tmp_path):
             except (FileNotFoundError, json.JSONDecodeError, KeyError):
                 time.sleep(0.05)
         assert address, "the dask scheduler wrote no scheduler file within 60 s"
-        procs.append(subprocess.Popen([dask, "worker", address, "--nthreads", "2", "--no-nanny", "--no-dashboard"],
+        procs.append(subprocess.Popen([dask, "worker", address, "--nworkers", "2", "--nthreads", "2", "--no-dashboard"],
                                       **quiet))
         from distributed import Client
 
         with Client(address, timeout="30s") as client:
-            client.wait_for_workers(1, timeout=60)
-            assert [w["nthreads"] for w in client.scheduler_info()["workers"].values()] == [2]
+            client.wait_for_workers(2, timeout=60)
+            assert [w["nthreads"] for w in client.scheduler_info()["workers"].values()] == [2, 2]
         yield address
     finally:  # the worker first (it says goodbye to the scheduler), each killed if it lingers
         for p in reversed(procs):
@@ -172,7 +173,7 @@ def dask_cluster(tmp_path):
                 p.wait(timeout=10)
 
 
-def test_a_sweep_on_a_two_thread_dask_worker_gives_the_serial_table(tmp_path, dask_cluster):
+def test_a_sweep_on_two_dask_worker_processes_of_two_threads_gives_the_serial_table(tmp_path, dask_cluster):
     sweep = small_sweep(tmp_path)
     tables = {}
     for name, args in (("serial", ()), ("dask", ("--scheduler", dask_cluster))):
