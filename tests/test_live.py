@@ -6,6 +6,7 @@ Ctrl-C during a live run leaves consistent logs."""
 
 import base64
 import json
+import os
 import signal
 import struct
 import subprocess
@@ -138,8 +139,7 @@ def test_live_logs_are_byte_identical_to_the_same_run_without(tmp_path):
     assert run_cli("run", SCENARIO, "--out", plain, "--set", "sim.duration=1").returncode == 0
     port = free_port()
     got = tmp_path / "received.rrd"
-    receiver = subprocess.Popen([str(Path(sys.executable).parent / "rerun"), "--port", str(port), "--save", str(got)],
-                                stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    receiver = _receiver(port, got)
     try:
         _wait_listening(port)
         done = run_cli("run", SCENARIO, "--out", live, "--set", "sim.duration=1", "--foxglove", "127.0.0.1:0",
@@ -148,13 +148,32 @@ def test_live_logs_are_byte_identical_to_the_same_run_without(tmp_path):
         assert f"rerun: streaming to rerun+http://127.0.0.1:{port}/proxy" in done.stderr
         _wait_rows(got, "/loop/cart/V1/log10_V1", 1000)
     finally:
-        receiver.send_signal(signal.SIGINT)  # the receiver ends its file and exits
-        receiver.communicate(timeout=60)
+        _stop(receiver)
     name = f"{SCENARIO}.mcap"
     assert (live / name).read_bytes() == (plain / name).read_bytes()
     rrd = f"{SCENARIO}.rrd"
     for entity in ("/loop/cart/V1/log10_V1", "/loop/cart/control", "/world/cart"):
         assert rrd_rows(live / rrd, entity) == rrd_rows(plain / rrd, entity) == rrd_rows(got, entity), entity
+
+
+def _receiver(port: int, path) -> subprocess.Popen:
+    """A `rerun --port PORT --save PATH` receiver in its own session: `rerun` is a Python wrapper
+    around the viewer binary, and Ctrl-C must reach both, as a terminal's does (:func:`_stop`).
+    Its log output is dropped (a pipe nobody reads while the test runs could fill and stall it)."""
+    return subprocess.Popen([str(Path(sys.executable).parent / "rerun"), "--port", str(port), "--save", str(path)],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+
+
+def _stop(receiver: subprocess.Popen) -> None:
+    """Ctrl-C the receiver's process group; it ends its file and exits. What the tests check of the
+    file was waited for before (:func:`_wait_rows`), so a receiver that is slow to shut down on a
+    loaded machine is killed after 60 s rather than failing a test about our logs."""
+    os.killpg(receiver.pid, signal.SIGINT)
+    try:
+        receiver.wait(timeout=60)
+    except subprocess.TimeoutExpired:
+        os.killpg(receiver.pid, signal.SIGKILL)
+        receiver.wait()
 
 
 def _wait_listening(port: int, timeout: float = 60.0) -> None:
@@ -275,16 +294,14 @@ def test_the_python_api_streams_to_a_rerun_viewer_without_writing_a_file(tmp_pat
 
     port = free_port()
     got = tmp_path / "received.rrd"
-    receiver = subprocess.Popen([str(Path(sys.executable).parent / "rerun"), "--port", str(port), "--save", str(got)],
-                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    receiver = _receiver(port, got)
     try:
         _wait_listening(port)
         res = ftstab_mj.run(SCENARIO, overrides={"sim.duration": 0.5}, live=f"rerun+http://127.0.0.1:{port}/proxy")
         assert res.status == "completed" and res.logs == {}
         _wait_rows(got, "/loop/cart/V1/log10_V1", len(res.samples["cart"]["t"]) + 1)  # + its style row
     finally:
-        receiver.send_signal(signal.SIGINT)
-        receiver.communicate(timeout=60)
+        _stop(receiver)
     assert not any(p.suffix in (".mcap", ".rrd") for p in tmp_path.iterdir() if p != got)
 
 
