@@ -46,9 +46,10 @@ samples = 2
 def test_shipped_accuracy_vs_period_sweep_end_to_end(tmp_path):
     sweep = SWEEPS / "robust_accuracy_vs_period.toml"
     out = tmp_path / "o"
-    res = run_cli("sweep", "robust_accuracy_vs_period", "--set", "sim.duration=0.1", "--out", out, "--engine", "processes",
-                  "--workers", "2", "--report")
+    res = run_cli("sweep", "robust_accuracy_vs_period", "--set", "sim.duration=0.1", "--out", out, "--workers", "2",
+                  "--report")
     assert res.returncode == 0, res.stderr
+    assert "(engine processes, 2 worker(s))" in res.stderr  # the local default for N > 1: no Dask cluster
     t = read_table(out / "robust_accuracy_vs_period.parquet")
     assert t["status"] == ["completed"] * 14
     assert sorted(set(t["sim.period"])) == [1e-4, 2e-4, 5e-4, 1e-3, 2e-3, 5e-3, 1e-2]
@@ -157,8 +158,10 @@ def test_interrupted_sweep_resumes_without_rerunning_finished_rows(tmp_path):
     (lambda s: s, ("--set", "sim.duration=-1"),
      r"cart_r2_robust.toml \(--set sim.duration=-1\): sim.duration: expected a number > 0"),
     (lambda s: s, ("--engine", "serial", "--workers", "2"), r"--engine serial: expected no --workers"),
-    # the same with a local Dask cluster starting meanwhile (engine.started_ahead): still one line, nothing written
-    (lambda s: s.replace("1e-3, 2e-3, 3e-3", "1e-3, 1.5e-3"), ("--workers", "2"),
+    (lambda s: s, ("--engine", "processes", "--scheduler", "tcp://127.0.0.1:1"),
+     r"--scheduler: expected --engine dask, found --engine processes"),
+    # a bad row with a local Dask cluster starting meanwhile (engine.started_ahead): still one line, nothing written
+    (lambda s: s.replace("1e-3, 2e-3, 3e-3", "1e-3, 1.5e-3"), ("--engine", "dask", "--workers", "2"),
      r"small.toml \(row 4: sim.period = 0.0015\): sim.period: expected an integer multiple"),
     (lambda s: s.replace("samples = 2", "samples = 0"), (), r"small.toml: samples: expected an integer >= 1"),
 ])
