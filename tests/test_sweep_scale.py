@@ -112,3 +112,27 @@ def test_forked_workers_after_the_first_row_run_in_the_parent_give_the_serial_re
                              timeout=120)
         assert out.returncode == 0, out.stderr
         assert out.stdout.split() == ["true"]
+
+
+BATCH_PROCESS = """
+import os, sys
+sys.argv = ["ftstab", "sweep", sys.argv[1], "--out", sys.argv[2]]
+from ftstab_mj.__main__ import main
+code = main()
+# pyarrow's allocator starts its own thread when the table is written, after the rows: not counted
+threads = [open(f"/proc/self/task/{t}/comm").read().strip() for t in os.listdir("/proc/self/task")]
+print(code, os.environ["OPENBLAS_NUM_THREADS"], "glfw" in sys.modules, len([t for t in threads if t != "jemalloc_bg_thd"]))
+"""
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="counts the process's threads in /proc")
+def test_a_sweep_process_runs_with_one_blas_thread_and_without_opengl(tmp_path):
+    """`ftstab sweep` sets OPENBLAS_NUM_THREADS=1 and MUJOCO_GL=disable before NumPy and MuJoCo load:
+    the sweep runs, `import mujoco` loaded no GLFW, and the process has no thread but its own (OpenBLAS
+    would have started one per core at `import numpy`)."""
+    cart_sweep(tmp_path, samples=1)
+    env = {k: v for k, v in __import__("os").environ.items() if k not in ("OPENBLAS_NUM_THREADS", "MUJOCO_GL")}
+    out = subprocess.run([sys.executable, "-c", BATCH_PROCESS, str(tmp_path / "cart.toml"), str(tmp_path / "o")],
+                         capture_output=True, text=True, cwd=ROOT, env=env, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.split()[-4:] == ["0", "1", "False", "1"]
