@@ -7,6 +7,9 @@ cumsum), so the per-message cost is a few list operations. The file layout is th
 Writer produces (magic, header, metadata, chunks each followed by its message indexes, data end,
 summary with schemas, channels, statistics, chunk and metadata indexes, summary offsets, footer,
 magic); the one-off records are serialized with the ``mcap`` package's own record classes.
+The summary's chunk indexes (~110 bytes a chunk, one chunk a flush) are serialized as each chunk
+is written and kept in an unlinked temporary file (:class:`_Spill`), not in memory: a writer holds
+the same few kilobytes after 10 chunks as after 10^5.
 
 Every :meth:`McapFile.flush` ends the current chunk and flushes the file: a reader that stops
 at the first incomplete record gets everything flushed so far (logs/reader.py). After a write
@@ -20,7 +23,9 @@ intact one (logs/reader.py checks all three). They cost ~0.1 us a sample (zlib, 
 
 from __future__ import annotations
 
+import os
 import struct
+import tempfile
 import zlib
 
 import numpy as np
@@ -32,6 +37,60 @@ _OP_MESSAGE_INDEX = 0x07
 _MSG_HEADER = np.dtype([("op", "u1"), ("length", "<u8"), ("channel", "<u2"), ("sequence", "<u4"),
                         ("log_time", "<u8"), ("publish_time", "<u8")])
 _MSG_FIXED = _MSG_HEADER.itemsize - 9  # record body bytes before the data (2 + 4 + 8 + 8)
+
+
+class _Spill:
+    """Bytes appended in order, kept in an unlinked temporary file (in memory when no temporary file
+    can be made or written: a full disk), read back in blocks by :meth:`blocks`."""
+
+    BLOCK = 1 << 20
+
+    def __init__(self):
+        self.size, self._mem, self._file = 0, bytearray(), None
+        try:
+            self._file = tempfile.TemporaryFile()
+        except OSError:
+            pass
+
+    def append(self, data: bytes) -> None:
+        if self._file is not None:
+            try:
+                os.pwrite(self._file.fileno(), data, self.size)
+                self.size += len(data)
+                return
+            except OSError:  # what the file holds goes back to memory, and the rest stays there
+                self._mem = bytearray(self._read())
+                self._close()
+        self._mem += data
+        self.size += len(data)
+
+    def truncate(self, size: int) -> None:
+        """Forget the bytes from ``size`` on."""
+        if self._file is not None:
+            self._file.truncate(size)
+        else:
+            del self._mem[size:]
+        self.size = size
+
+    def _read(self):
+        return b"".join(self.blocks())
+
+    def blocks(self):
+        """The bytes held, in blocks of at most BLOCK bytes."""
+        if self._file is None:
+            yield from (bytes(self._mem[i:i + self.BLOCK]) for i in range(0, self.size, self.BLOCK))
+            return
+        for i in range(0, self.size, self.BLOCK):
+            yield os.pread(self._file.fileno(), min(self.BLOCK, self.size - i), i)
+
+    def _close(self) -> None:
+        if self._file is not None:
+            self._file.close()
+            self._file = None
+
+    def close(self) -> None:
+        self._close()
+        self._mem, self.size = bytearray(), 0
 
 
 class McapFile:
@@ -49,7 +108,8 @@ class McapFile:
         self._compression = compression
         self._builder = RecordBuilder
         self._schemas, self._channels = [], []
-        self._chunk_indexes, self._metadata_indexes = [], []
+        self._chunk_indexes = _Spill()  # the ChunkIndex records of the chunks written, serialized
+        self._metadata_indexes = []
         self._parts: list[bytes] = []  # uncompressed records of the open chunk
         self._size = 0  # their total length
         self._index: dict[int, list[np.ndarray]] = {}  # channel -> [(n, 2) (log_time, offset)]
@@ -67,7 +127,7 @@ class McapFile:
 
     # -- the state after the last complete flush, which a write error returns to -----------------
     def _mark(self) -> None:
-        self._flushed = (self._f.tell(), len(self._schemas), len(self._channels), len(self._chunk_indexes),
+        self._flushed = (self._f.tell(), len(self._schemas), len(self._channels), self._chunk_indexes.size,
                          len(self._metadata_indexes), dict(self._counts), self._t_first, self._t_last,
                          self._n_chunks, self._data_crc, dict(self._written))
 
@@ -80,8 +140,8 @@ class McapFile:
          self._n_chunks, self._data_crc, self._written) = self._flushed
         self._f.truncate(end)
         self._f.seek(end)
-        del self._schemas[n_schemas:], self._channels[n_channels:]
-        del self._chunk_indexes[n_chunks:], self._metadata_indexes[n_metadata:]
+        del self._schemas[n_schemas:], self._channels[n_channels:], self._metadata_indexes[n_metadata:]
+        self._chunk_indexes.truncate(n_chunks)
         self._counts, self._written = dict(self._counts), dict(self._written)
         self._parts, self._size, self._index, self._t0, self._t1 = [], 0, {}, None, None
 
@@ -237,10 +297,10 @@ class McapFile:
                 pos += len(rec)
                 blobs.append(rec)
             self._write(b"".join(blobs))
-            self._chunk_indexes.append(ChunkIndex(
+            self._chunk_indexes.append(self._record_bytes(ChunkIndex(
                 message_start_time=t0, message_end_time=t1, chunk_start_offset=chunk_start,
                 chunk_length=len(chunk_bytes), message_index_offsets=offsets, message_index_length=pos - index_start,
-                compression=self._compression, compressed_size=len(data), uncompressed_size=len(raw)))
+                compression=self._compression, compressed_size=len(data), uncompressed_size=len(raw))))
             if self._t0 is not None:
                 self._t_first = t0 if self._t_first is None else min(self._t_first, t0)
                 self._t_last = t1 if self._t_last is None else max(self._t_last, t1)
@@ -252,40 +312,45 @@ class McapFile:
         self._mark()
 
     def finish(self) -> None:
-        """End the data section and write the summary, footer and closing magic."""
+        """End the data section and write the summary, footer and closing magic. The chunk indexes
+        are copied from their temporary file block by block (the summary's CRC-32 computed as it goes)."""
         from mcap.opcode import Opcode
         from mcap.records import DataEnd, Footer, Statistics, SummaryOffset
 
         self.flush()
         self._f.write(self._record_bytes(DataEnd(data_section_crc=self._data_crc)))
         summary_start = self._f.tell()
-        b = self._builder()
-        offsets = []
+        crc, size, offsets = 0, 0, []
 
-        def group(opcode, records):
-            start = b.count
-            for rec in records:
-                rec.write(b)
+        def write(data: bytes) -> None:
+            nonlocal crc, size
+            crc = zlib.crc32(data, crc)
+            size += len(data)
+            self._f.write(data)
+
+        def group(opcode, blocks):
+            start = size
+            for data in blocks:
+                write(data)
             offsets.append(SummaryOffset(group_opcode=opcode, group_start=summary_start + start,
-                                         group_length=b.count - start))
+                                         group_length=size - start))
 
         stats = Statistics(
             message_count=sum(self._written.values()), schema_count=len(self._schemas),
             channel_count=len(self._channels), attachment_count=0, metadata_count=len(self._metadata_indexes),
             chunk_count=self._n_chunks, message_start_time=self._t_first or 0, message_end_time=self._t_last or 0,
             channel_message_counts={ch: n for ch, n in self._written.items() if n})
-        group(Opcode.SCHEMA, self._schemas)
-        group(Opcode.CHANNEL, self._channels)
-        group(Opcode.STATISTICS, [stats])
-        group(Opcode.CHUNK_INDEX, self._chunk_indexes)
-        group(Opcode.METADATA_INDEX, self._metadata_indexes)
-        offset_start = summary_start + b.count
+        group(Opcode.SCHEMA, map(self._record_bytes, self._schemas))
+        group(Opcode.CHANNEL, map(self._record_bytes, self._channels))
+        group(Opcode.STATISTICS, [self._record_bytes(stats)])
+        group(Opcode.CHUNK_INDEX, self._chunk_indexes.blocks())
+        group(Opcode.METADATA_INDEX, map(self._record_bytes, self._metadata_indexes))
+        offset_start = summary_start + size
         for off in offsets:
-            off.write(b)
-        summary = b.end()
-        crc = zlib.crc32(struct.pack("<BQQQ", Opcode.FOOTER, 20, summary_start, offset_start), zlib.crc32(summary))
-        self._f.write(summary)
+            write(self._record_bytes(off))
+        crc = zlib.crc32(struct.pack("<BQQQ", Opcode.FOOTER, 20, summary_start, offset_start), crc)
         self._f.write(self._record_bytes(Footer(summary_start=summary_start, summary_offset_start=offset_start,
                                                 summary_crc=crc)))
         self._f.write(MAGIC)
         self._f.flush()
+        self._chunk_indexes.close()
