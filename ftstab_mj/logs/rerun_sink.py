@@ -60,6 +60,13 @@ FIXED_COLOURS = {"u": (214, 39, 40), "u0": (30, 30, 30), "u_applied": (44, 160, 
 V1_COLOURS = {"log10_V1": (31, 119, 180), "settle_level": (127, 127, 127), "envelope": (148, 103, 189),
               "T_z0": (214, 39, 40)}
 PLOTTED = {"t", "V1", *(f for fields in PLOTS.values() for f in fields)}
+# Rerun's file writer keeps an index entry per chunk for the footer it writes at the end (its RRD
+# manifest: ~780 B a chunk measured with rerun-sdk 0.41, one chunk per entity and batch: 47 MB for a
+# 10^7-sample run in batches of 1000). A recording expected to hold more chunks than this is written
+# without the footer (FileSink(write_footer=False)), so that a long run's memory stays flat: the file
+# is a valid .rrd all the same (the viewer and `rerun rrd` read it), and `rerun rrd optimize` adds a
+# footer later. At this bound the index costs ~9 MB.
+FOOTER_MAX_CHUNKS = 12_000
 
 
 def _eye(info: RunInfo, body_pos: np.ndarray):
@@ -183,6 +190,8 @@ class RerunSink:
         self._time_bounds: dict[str, float] = {}  # loop -> T(z0) (s), where finite
         self._rec = None
         self._pump = None
+        self.footer = None  # whether the file gets Rerun's footer (FOOTER_MAX_CHUNKS), decided at the first batch
+        self.expected_chunks = None  # the chunks the batches of the run will make, estimated then
 
     @write_errors(WHAT)
     def open(self, info: RunInfo) -> None:
@@ -254,11 +263,14 @@ class RerunSink:
         info, rec = self._info, self._rec
         eye = _eye(info, body_pos) if info.model_xml is not None else None
         others = []
+        per_batch = len(info.body_names)  # the chunks a batch makes: one per body and per plotted entity
         for name, arrays in (loops or {}).items():
+            per_batch += 1  # log10_V1
             for plot, fields in (*PLOTS.items(), ("other", [f for f in arrays if f not in PLOTTED])):
                 names = [n for f in fields if f in arrays for n in _labels(f, arrays[f])]
                 if not names:
                     continue
+                per_batch += 1
                 others += [name] if plot == "other" else []
                 colours = [FIXED_COLOURS.get(n) for n in names]
                 free = iter(c for c in PALETTE if c not in colours)
@@ -267,15 +279,29 @@ class RerunSink:
                     aggregation_policy="MinMax" if plot == "control" else None), static=True)
         bp = blueprint(info, eye, others)
         sinks = []
+        self.expected_chunks = self._expected_chunks(loops, per_batch)
+        self.footer = self.path is not None and self.expected_chunks <= FOOTER_MAX_CHUNKS
         if self.path is not None:
-            sinks.append(rr.FileSink(self._pump.target if self._pump is not None else self.path))
+            sinks.append(rr.FileSink(self._pump.target if self._pump is not None else self.path,
+                                     write_footer=self.footer))
         if self.live:
             sinks.append(rr.GrpcSink(start_viewer(self.live, self.grpc_port, self.web_port)))
         if sinks:
-            rec.set_sinks(*sinks, default_blueprint=bp)
+            with _quiet_stderr(not self.footer and self.path is not None):
+                rec.set_sinks(*sinks, default_blueprint=bp)
         if self._pump is not None:
             self._pump.writer_opened()
         self._attached = True
+
+    def _expected_chunks(self, loops, per_batch: int) -> float:
+        """The chunks the recording will hold: per_batch for each batch of the first one's size
+        (``loops``: the first batch) over the run's duration (a recording of unknown length: 0)."""
+        sim = self._info.scenario.get("sim")
+        duration = float(sim.get("duration", 0.0) or 0.0) if isinstance(sim, dict) else 0.0
+        size = max((len(a["t"]) for a in (loops or {}).values()), default=0)
+        if size == 0 or not duration > 0:
+            return 0.0
+        return math.ceil(round(duration / self._info.period) / size) * per_batch
 
     def _flush(self) -> None:
         """Everything logged so far is in the file; raises the first write error (then abandons)."""
@@ -384,6 +410,34 @@ class RerunSink:
         if pump is not None and pump.error is not None:
             raise pump.error
         self.closed_status = status
+
+
+class _quiet_stderr:
+    """Within it, file descriptor 2 goes to /dev/null (when ``on``), then back: Rerun's Rust logger
+    warns there when a file sink has no footer, naming the pipe the sink writes into; the README says
+    what that means for the user (section "Long runs and long logs in flat memory")."""
+
+    def __init__(self, on: bool):
+        self.on, self.saved = on, None
+
+    def __enter__(self):
+        import os
+        import sys
+
+        if self.on:
+            sys.stderr.flush()
+            self.saved = os.dup(2)
+            null = os.open(os.devnull, os.O_WRONLY)
+            os.dup2(null, 2)
+            os.close(null)
+
+    def __exit__(self, *exc):
+        import os
+
+        if self.saved is not None:
+            os.dup2(self.saved, 2)
+            os.close(self.saved)
+            self.saved = None
 
 
 def start_viewer(live: str, grpc_port: int, web_port: int) -> str:
