@@ -155,7 +155,17 @@ CHATTER_RTOL = 0.25  # amplitudes of the chattering band (final accuracy, chatte
 TIMING_PERIODS = 2  # settling / entry times: one period of metric resolution + one of sample phase
 INTEGRAL_RTOL = 1e-3  # effort integrals (dominated by the smooth transient)
 CLOSED_FORM_RTOL = 1e-9  # closed-form values (V1 of z0) and exact copies
-CERTIFICATE_RTOL = 1e-6  # values from the certificate (c_lower, c'): deterministic, last digits may move with NumPy
+CERTIFICATE_RTOL = 1e-6  # other seeded estimates (u_needed) and Theorem 3's Phibar (no certificate in it)
+# The certificate is pinned by what the branch and bound guarantees, not by its bits: every sound run
+# gives c_lower <= c <= c_upper, and a converged one (c_upper - c_lower <= GAP_RTOL c_upper, the
+# stopping gap of ftstab_mj/control/certificate.py) has both ends within GAP_RTOL of c. So a new run's
+# bracket must overlap the pinned one (c_lower <= pinned c_upper, c_upper >= pinned c_lower: both hold c),
+# and where the pinned one converged, c_lower >= (1 - GAP_RTOL) pinned c_lower and c_upper <= pinned
+# c_upper / (1 - GAP_RTOL). c' likewise (its gap: c'_upper <= (1 + GAP_RTOL) c'_lower). What derives
+# from them (T(z0) ~ 1 / c_lower; Theorem 3's Delta, increasing in c', and phi_hat_limsup) gets the range
+# those brackets allow, widened by ROUNDING_RTOL for the float formulas around them.
+GAP_RTOL = 2e-3
+ROUNDING_RTOL = 1e-9
 
 
 def _tol(value, **tol):
@@ -165,8 +175,9 @@ def _tol(value, **tol):
     return {"value": value, **{k: v for k, v in tol.items() if v}}
 
 
-def pin_loop(m: dict, period: float, rate: float | None) -> dict:
-    """Expectations for one loop's metrics (see :data:`TIMING_PERIODS` and the other constants).
+def pin_loop(m: dict, period: float, rate: float | None, hong: dict | None = None) -> dict:
+    """Expectations for one loop's metrics (see :data:`TIMING_PERIODS` and the other constants);
+    hong: the loop's Hong controller (LoopInfo.hong: r, k, ...), for Theorem 3's exponents.
 
     phi_hat (adaptive, rate = the adaptation rate): grows at most at ``rate`` per second, so a timing
     shift of TIMING_PERIODS periods moves it by at most TIMING_PERIODS * period * rate.
@@ -178,7 +189,7 @@ def pin_loop(m: dict, period: float, rate: float | None) -> dict:
         "law": m["law"], "n_samples": m["n_samples"], "z0": m["z0"],
         "V1_initial": _tol(m["V1_initial"], rtol=CLOSED_FORM_RTOL),
         "settle_time": _tol(m["settle_time"], atol=dt),
-        "time_bound": _tol(m["time_bound"], rtol=CERTIFICATE_RTOL),
+        "time_bound": _tol(m["time_bound"], rtol=CERTIFICATE_RTOL),  # replaced below from the certificate's bracket
         "bound_applies": m["bound_applies"],
         "final_abs_z_max": _tol(m["final_abs_z_max"], rtol=CHATTER_RTOL, atol=1e-12),
         "chattering": _tol(m["chattering"], rtol=CHATTER_RTOL, atol=1e-12),
@@ -201,20 +212,100 @@ def pin_loop(m: dict, period: float, rate: float | None) -> dict:
         out["time_saturated"] = _tol(m["time_saturated"], atol=dt)
     cert = m.get("certificate")
     if cert:
-        out["certificate"] = {"status": cert["status"], "c_lower": _tol(cert["c_lower"], rtol=CERTIFICATE_RTOL)}
-    th = m.get("theorem3")
-    if th:
-        out["theorem3"] = {k: (_tol(th[k], rtol=CERTIFICATE_RTOL) if k in ("Phibar", "Delta", "phi_hat_limsup")
-                               else th[k]) for k in ("Phibar", "Delta", "phi_hat_limsup", "Delta_held",
-                                                      "phi_hat_bound_held", "eps_reached")}
+        c, cp = _bracket(cert["c_lower"], cert["c_upper"], 1.0 / (1.0 - GAP_RTOL)), _bracket(
+            cert.get("c_prime_lower"), cert["c_prime_upper"], 1.0 + GAP_RTOL)
+        out["certificate"] = {"status": cert["status"], **_bracket_pins("c", c, cert["status"])}
+        if cp is not None:
+            out["certificate"].update(_bracket_pins("c_prime", cp, None))
+        if m["time_bound"] is not None and c is not None:  # T ~ 1 / c_lower
+            out["time_bound"] = _range(m["time_bound"], 1.0 / c.up_lower, 1.0 / c.down_lower if c.down_lower else math.inf)
+        th = m.get("theorem3")
+        if th and c is not None and cp is not None and hong is not None:
+            out["theorem3"] = _theorem3_pins(th, c, cp, hong)
+        elif th:
+            out["theorem3"] = {key: th[key] for key in ("Delta_held", "phi_hat_bound_held", "eps_reached")}
+    return out
+
+
+@dataclass(frozen=True)
+class _Bracket:
+    """A pinned bracket [lo, hi] of a certificate constant and the factors by which a new run's ends
+    may differ from it (see GAP_RTOL): lower end in [lo down_lower, hi], upper end in [lo, hi up_upper]
+    (down_lower = 0 and up_upper = inf when the pinned run did not converge: only the overlap is due)."""
+
+    lo: float
+    hi: float
+    down_lower: float  # new lower end >= lo * down_lower
+    up_lower: float  # new lower end <= lo * up_lower (= hi / lo)
+    up_upper: float  # new upper end <= hi * up_upper
+
+
+def _bracket(lo, hi, gap_factor: float):
+    """The bracket of a constant with ends lo <= hi (None: not known, e.g. c_lower = -inf), converged
+    when hi <= gap_factor lo (c: 1 / (1 - GAP_RTOL); c': 1 + GAP_RTOL)."""
+    if lo is None or hi is None or not 0 < lo <= hi:
+        return None
+    done = hi <= gap_factor * lo
+    return _Bracket(lo, hi, 1.0 / gap_factor if done else 0.0, hi / lo, gap_factor if done else math.inf)
+
+
+def _bracket_pins(name: str, b, status) -> dict:
+    """{name_lower: spec, name_upper: spec} for the bracket b; without one, a not-certified c has
+    c_upper <= 0 (a witness with dV1/dt >= 0: what "not certified" means) and nothing else is due."""
+    if b is None:
+        return {f"{name}_upper": {"max": 0.0}} if status == "not certified" else {}
+    lower = {"min": _out(b.lo * b.down_lower, -1)} if b.down_lower else {}
+    lower["max"] = _out(b.hi, +1)
+    upper = {"min": _out(b.lo, -1)}
+    if math.isfinite(b.up_upper):
+        upper["max"] = _out(b.hi * b.up_upper, +1)
+    return {f"{name}_lower": lower, f"{name}_upper": upper}
+
+
+def _out(x: float, direction: int) -> float:
+    """x moved outward by ROUNDING_RTOL (direction +1: up, -1: down)."""
+    return x * (1.0 + direction * ROUNDING_RTOL) if x >= 0 else x * (1.0 - direction * ROUNDING_RTOL)
+
+
+def _range(x: float, lo_factor: float, hi_factor: float) -> dict:
+    """{min, max} for a metric pinned at x that may move by a factor in [lo_factor, hi_factor]."""
+    out = {"min": _out(x * lo_factor, -1)}
+    if math.isfinite(hi_factor):
+        out["max"] = _out(x * hi_factor, +1)
+    return out
+
+
+def _theorem3_pins(th: dict, c: _Bracket, cp: _Bracket, hong: dict) -> dict:
+    """Theorem 3's constants (metrics.theorem3_check) for the brackets of c and c'. Delta =
+    (eps^(1-a') + c' K)^q with q = 1/(1 - a') and K > 0: a factor lam on c' moves Delta by a factor
+    between 1 and lam^q. phi_hat_limsup = 2 Phibar + G with G = rate Delta^(1-a) / (c_lower (1-a)).
+    a = (2 + 2k)/(2 + k), 1 - a' = p_r / (2 + k), p_r = 1 + (r - 1) k (ftstab_mj/control/certificate.py)."""
+    r, k = int(hong["r"]), float(hong["k"])
+    one_m_a, q = -k / (2.0 + k), (2.0 + k) / (1.0 + (r - 1) * k)
+    cp_lo, cp_hi = cp.lo / cp.hi, cp.up_upper  # the new c'_upper over the pinned one
+    out = {"Phibar": _tol(th["Phibar"], rtol=CERTIFICATE_RTOL)}
+    if th["Delta"] is None:
+        out["Delta"] = {"null": True}
+    else:
+        out["Delta"] = _range(th["Delta"], cp_lo ** q, cp_hi ** q)
+    L, Phibar = th["phi_hat_limsup"], th["Phibar"]
+    if L is None or th["Delta"] is None or one_m_a == 0.0:
+        out["phi_hat_limsup"] = _tol(L, rtol=CERTIFICATE_RTOL)
+    else:
+        G = L - 2.0 * Phibar
+        g = _range(G, cp_lo ** (q * one_m_a) / c.up_lower,
+                   cp_hi ** (q * one_m_a) / c.down_lower if c.down_lower else math.inf)
+        out["phi_hat_limsup"] = {key: 2.0 * Phibar + v for key, v in g.items()}
+    out.update({key: th[key] for key in ("Delta_held", "phi_hat_bound_held", "eps_reached")})
     return out
 
 
 def pin_expectations(metrics: dict, info) -> dict:
     """An expectation tree for ``metrics`` of the run described by ``info`` (records.RunInfo)."""
     rates = {lp.name: (lp.law_params.get("rate") if lp.law == "adaptive" else None) for lp in info.loops}
+    hongs = {lp.name: lp.hong for lp in info.loops}
     return {"status": metrics["status"], "n_samples": metrics["n_samples"],
-            "loops": {name: pin_loop(m, info.period, rates[name]) for name, m in metrics["loops"].items()}}
+            "loops": {name: pin_loop(m, info.period, rates[name], hongs[name]) for name, m in metrics["loops"].items()}}
 
 
 def to_toml(tree: dict, header: str = "") -> str:
@@ -225,5 +316,10 @@ def to_toml(tree: dict, header: str = "") -> str:
 PIN_HEADER = f"""Pinned metrics (ftstab check LOG.mcap --expect THIS_FILE). Tolerances (ftstab_mj/expectations.py):
 times (settle_time, eps_entry_time): +- {TIMING_PERIODS} control periods (metric resolution + sample phase);
 phi_hat: +- {TIMING_PERIODS} periods x the adaptation rate; V1(z0): rtol {CLOSED_FORM_RTOL:g};
-certificate-derived (time_bound, Theorem 3 constants): rtol {CERTIFICATE_RTOL:g};
-effort integrals and max |u|: rtol {INTEGRAL_RTOL:g}; chattering-band amplitudes: rtol {CHATTER_RTOL:g}."""
+effort integrals and max |u|: rtol {INTEGRAL_RTOL:g}; chattering-band amplitudes: rtol {CHATTER_RTOL:g}.
+The certificate: what the branch and bound guarantees, not its bits. c_lower <= c <= c_upper in every
+sound run, so a new bracket overlaps the pinned one (c_lower <= pinned c_upper, c_upper >= pinned c_lower);
+where the pinned run converged (gap c_upper - c_lower <= {GAP_RTOL:g} c_upper, the B&B's stopping gap),
+c_lower >= (1 - {GAP_RTOL:g}) pinned c_lower and c_upper <= pinned c_upper / (1 - {GAP_RTOL:g}); c' alike
+(its gap: c'_upper <= (1 + {GAP_RTOL:g}) c'_lower). time_bound ~ 1/c_lower and Theorem 3's Delta and
+phi_hat_limsup get the range these brackets allow; every range is widened by {ROUNDING_RTOL:g} relative."""

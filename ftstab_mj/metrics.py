@@ -51,13 +51,14 @@ CERTIFICATE_METHOD = "interval branch and bound"
 
 
 def certificate_summary(loop):
-    """The loop's certificate as logged: {"method", "status", "c_lower", "c_upper", "c_prime_upper"}
-    (None for a law not built on Hong's controller)."""
+    """The loop's certificate as logged: {"method", "status", "c_lower", "c_upper", "c_prime_upper",
+    "c_prime_lower"} (c' bracketed as c is; None for a law not built on Hong's controller)."""
     if not loop.hong:
         return None
     cert = loop_certificate(loop)
     return {"method": CERTIFICATE_METHOD, "status": cert.status, "c_lower": _num_or_none(cert.c_lower),
-            "c_upper": _num_or_none(cert.c_upper), "c_prime_upper": _num_or_none(cert.c_prime_upper)}
+            "c_upper": _num_or_none(cert.c_upper), "c_prime_upper": _num_or_none(cert.c_prime_upper),
+            "c_prime_lower": _num_or_none(cert.c_prime_lower)}
 
 
 def _num_or_none(x):
@@ -154,28 +155,38 @@ def estimation_error(z_hat, z):
     return [_num(x) for x in e.max(axis=0)], [_num(x) for x in np.sqrt(np.mean(e * e, axis=0))]
 
 
-def time_bound(loop, V1_0):
-    """Theorem 1's bound (s) on the time to reach the origin from V1(z0): V1_0^(1-alpha) / (c (1-alpha)).
-
-    None when the certificate does not hold (c <= 0, or the simplified form, which has none).
+def time_bound(loop, z0):
+    """Theorem 1's bound (s) on the time to reach the origin from z0 (r floats, chain units):
+    V1(z0)^(1-alpha) / (c_lower (1-alpha)), a guaranteed upper bound (V1(z0) enclosed and every step
+    rounded outward: Certificate.time_bound). None when the certificate does not hold (c <= 0, or
+    the simplified form, which has none). z0 (n, r): an array (n,), NaN where there is no bound.
     """
-    if not loop.hong:  # a law not built on Hong's controller: Theorem 1 says nothing
-        return None
-    cert = loop_certificate(loop)
-    if not cert.certified or not math.isfinite(V1_0):
-        return None
-    return _num(cert.time_bound(V1_0))
+    z0 = np.asarray(z0, dtype=float)
+    rows = np.atleast_2d(z0)
+    out = np.full(len(rows), np.nan)
+    if loop.hong and loop_certificate(loop).certified:  # else Theorem 1 says nothing
+        from ftstab_mj.control.certificate import V1_enclosure
+
+        h = loop.hong
+        ok = np.isfinite(rows).all(axis=1)
+        V = V1_enclosure(int(h["r"]), float(h["k"]), tuple(float(g) for g in h["gains"]), rows[ok])
+        out[ok] = loop_certificate(loop).time_bound(V)
+    out[~np.isfinite(out)] = np.nan
+    return out if z0.ndim == 2 else _num_or_none(None if np.isnan(out[0]) else out[0])
 
 
 ENVELOPE_POINTS = 400  # samples of the drawn envelope (a smooth curve on a log axis)
 
 
-def envelope(cert, V1_0: float, duration: float, n: int = ENVELOPE_POINTS):
+def envelope(cert, V1_0: float, duration: float, n: int = ENVELOPE_POINTS, T: float | None = None):
     """Theorem 1's envelope from V1(0) = V1_0: (t (m,), V1 bound (m,)) on [0, min(T, duration)],
     and T(z0) (s, inf when the certificate gives none). From dV1/dt <= -c V1^alpha the comparison
     lemma gives V1(t) <= (V1_0^(1-alpha) - c (1-alpha) t)^(1/(1-alpha)) until T(z0) =
-    V1_0^(1-alpha) / (c (1-alpha)) (chain units). What it guarantees: :func:`envelope_kind`."""
-    T = float(cert.time_bound(V1_0)) if cert is not None and cert.certified else math.inf
+    V1_0^(1-alpha) / (c (1-alpha)) (chain units). T: the run's :func:`time_bound` of z0 where the
+    caller has it (the same guaranteed number as the metrics; else Certificate.time_bound of V1_0).
+    What it guarantees: :func:`envelope_kind`."""
+    if T is None:
+        T = float(cert.time_bound(V1_0)) if cert is not None and cert.certified else math.inf
     if not math.isfinite(T) or not V1_0 > 0:
         return np.empty(0), np.empty(0), T
     a, c = cert.alpha, cert.c
@@ -676,7 +687,7 @@ class _LoopStream:
         ms, h = info.metric_settings, info.period
         fw = self._final_window()
         ts = self.settle.result(n, self.first["t"])
-        tb = time_bound(loop, self.first["V1"])
+        tb = time_bound(loop, self.first["z"])
         left = _workspace_text(loop, self.ext)
         stages = self.stages
         reasons = stage_reasons(stages)

@@ -91,10 +91,10 @@ def loop_info(sc, lp, law, plant) -> LoopInfo:
 
 def _rows(info: LoopInfo, first: int, Z0, settle, V1_0, V1_end, u_max, status) -> list[dict]:
     rows = []
+    bounds = mt.time_bound(info, Z0)  # NaN where no certificate holds
     for j in range(len(Z0)):
         ts = float(settle[j])
-        tb = mt.time_bound(info, float(V1_0[j]))
-        tb = math.nan if tb is None else float(tb)
+        tb = float(bounds[j])
         rows.append({"row": first + j, "z0": [float(x) for x in Z0[j]], "settle_time": ts, "time_bound": tb,
                      "ratio": ts / tb if math.isfinite(ts) and math.isfinite(tb) and tb > 0 else math.nan,
                      "V1_initial": float(V1_0[j]), "V1_final": float(V1_end[j]), "u_max_abs": float(u_max[j]),

@@ -142,7 +142,7 @@ def _v1_panel(lp, m: dict, a: dict, t: np.ndarray, settle_level: float) -> Panel
     curves = [Curve("V1", t, V1, color="C0"),
               Curve(f"settle level {settle_level:g}", np.empty(0), np.array([settle_level]), "hline", ":", "0.4")]
     if lp.law in ("nominal", "robust") and m.get("time_bound") is not None:
-        et, bound, T = envelope(loop_certificate(lp), float(V1[0]), t_end - t0)
+        et, bound, T = envelope(loop_certificate(lp), float(V1[0]), t_end - t0, T=m["time_bound"])
         kind = envelope_kind(m)
         after = "" if t0 + T <= t_end else ", after the end of the run"
         curves.append(Curve(f"Theorem 1 envelope ({kind})", t0 + et, bound, style="--", color="C4"))

@@ -51,7 +51,7 @@ def test_chain_distribution_of_1000_states_reproduces_the_serial_runs():
         run = simulate_chain(law, Z0[i], sc.sim.period, sc.sim.duration, phi=lp.disturbance, gamma=lp.gain,
                              substeps=2, native="auto")
         ts = mt.settle_time(run.t, run.V1, sc.metrics.settle_level)
-        tb = mt.time_bound(info, float(run.V1[0]))
+        tb = mt.time_bound(info, run.z[0])
         row = rows[i]
         assert row["row"] == i and row["z0"] == list(Z0[i])
         assert (ts is None and math.isnan(row["settle_time"])) or row["settle_time"] == ts

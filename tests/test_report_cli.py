@@ -84,8 +84,10 @@ def test_the_envelope_is_theorem_1s_formula_and_t_z0_the_recorded_time_bound(log
     np.testing.assert_allclose(env.y, formula, rtol=1e-12, atol=0)
     T = V1_0 ** (1 - a) / (c * (1 - a))
     (t_mark,) = curve(v1, "T(z0)").x
-    assert t_mark == pytest.approx(T, rel=1e-12)
-    assert t_mark == pytest.approx(log.recorded["metrics"]["loops"]["cart"]["time_bound"], rel=1e-12)
+    # the mark is the run's guaranteed T(z0): V1(z0) enclosed and rounded outward, so at or above the
+    # float formula, by the enclosure's width (about 1e-11 relative; interval.py's power margins)
+    assert t_mark == log.recorded["metrics"]["loops"]["cart"]["time_bound"]
+    assert T <= t_mark <= T * (1 + 1e-10)
     assert 6 < T < 8 and env.x[0] == 0.0 and env.x[-1] == pytest.approx(T, rel=1e-12) and env.y[-1] == 0.0
     # Theorem 1 on the sampled run: V1 stays under the envelope while the envelope is above the
     # settle level (below it the sampled loop's O(h) band may cross it, and does, near T(z0))

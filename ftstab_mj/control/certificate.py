@@ -26,11 +26,12 @@ from __future__ import annotations
 
 import time
 from dataclasses import asdict, dataclass, field
+from fractions import Fraction
 
 import numpy as np
 
 from ftstab_mj.control.hong import HongController
-from ftstab_mj.control.hong_terms import SLOTS, SimplifiedTerms, Terms
+from ftstab_mj.control.hong_terms import SLOTS, SimplifiedTerms, Terms, _power, exp_of
 from ftstab_mj.control.interval import Dual, Iv, _up
 from ftstab_mj.errors import ParameterError
 
@@ -74,6 +75,7 @@ class Certificate:
     region_max_dV1dt: float | None = None  # simplified form: guaranteed upper bound of dV1/dt there
     region_negative: bool | None = None  # simplified form: True proven < 0, False a witness >= 0, None undecided
     note: str = ""
+    k: float | None = None  # the controller's homogeneity degree (full form): time_bound encloses alpha from it
 
     def to_dict(self) -> dict:
         d = asdict(self)
@@ -90,13 +92,51 @@ class Certificate:
     def time_bound(self, V1_0):
         """Theorem 1's bound on the convergence time from a state with V1 = V1_0: V1_0^(1-a)/(c(1-a)).
 
-        Infinite when the certificate does not hold, and at k = 0 (alpha = 1: the linear law
-        converges exponentially, not in finite time). V1_0 may be an array.
+        A guaranteed upper bound for the exact V1_0 (a float or an array of them; an ``Iv`` enclosure
+        of V1 gives the bound for every value in it): 1 - alpha = -k / (2 + k) is enclosed from the
+        exact rational k, and the power, product and quotient are rounded outward (interval.Iv), with
+        c = c_lower. Infinite when the certificate does not hold, and at k = 0 (alpha = 1: the linear
+        law converges exponentially, not in finite time).
         """
         if not self.certified or self.alpha >= 1.0:
-            return np.full(np.shape(V1_0), np.inf) if np.ndim(V1_0) else float("inf")
-        a = self.alpha
-        return np.asarray(V1_0, dtype=float) ** (1.0 - a) / (self.c * (1.0 - a))
+            return np.full(np.shape(_hi(V1_0)), np.inf) if np.ndim(_hi(V1_0)) else float("inf")
+        F = Fraction(float(self.k))
+        one_minus_a = exp_of(-F / (2 + F))  # > 0 for -1/r < k < 0
+        V = V1_0 if isinstance(V1_0, Iv) else Iv(np.asarray(V1_0, dtype=float))
+        with np.errstate(all="ignore"):
+            T = (V.pabs(one_minus_a) * (Iv(float(self.c_lower)) * one_minus_a.iv()).recip()).hi
+        return T if np.ndim(T) else float(T)
+
+
+def _hi(x):
+    return x.hi if isinstance(x, Iv) else x
+
+
+def V1_enclosure(r: int, k: float, gains, z) -> Iv:
+    """An outward-rounded enclosure of the full form's V1 at the float states z (n, r) (shape (n,)):
+    the recursion variables s_i of Terms (hong_terms) enclosed in intervals, then V1 from them, with
+    each z_i that Terms.z_of would rebuild from s (sig(y_i, 1/beta), Hoelder: it would turn the few
+    ulps of s into ~1e-10) taken as the float it is. What a guaranteed T(z0) needs
+    (Certificate.time_bound of the enclosure)."""
+    t = Terms(r, k, gains)
+    z = np.atleast_2d(np.asarray(z, dtype=float))
+    s, S = [], None
+    with np.errstate(all="ignore"):
+        for i in range(1, r + 1):
+            si = Iv(z[:, i - 1]).sig(t.beta[i - 1])
+            si = si if S is None else si - S
+            s.append(si)
+            if i == 1 and r >= 2:
+                S = -(t.lb[1] * Iv(z[:, 0]))
+            elif i <= r - 1:
+                S = -(t.lb[i] * si.sig(t.q[i]))
+
+        def exact_z(slot, x, e, op):  # slot SLOTS (i - 2) + 3 is z_i (Terms.evaluate)
+            if slot % SLOTS == 3:
+                return Iv(z[:, slot // SLOTS + 1])
+            return _power(slot, x, e, op)
+
+        return t.evaluate(s, exact_z)[0]
 
 
 def unit_level_set_points(hong: HongController, n: int, rng: np.random.Generator) -> np.ndarray:
@@ -453,7 +493,8 @@ def certify(hong: HongController, samples: int = DEFAULT_SAMPLES, seed: int = DE
         alpha_prime=1.0 - float(hong.p[hong.r - 1]) / (2.0 + k), certified=status == CERTIFIED,
         samples=samples, seed=seed, status=status, c_lower=c_lower, c_upper=c_upper,
         c_prime_upper=mp.upper if mp else None, c_prime_lower=mp.lower if mp else None,
-        witness=tuple(float(x) for x in wit), boxes=mc.boxes + (mp.boxes if mp else 0), seconds=time.process_time() - t0, note=note)
+        witness=tuple(float(x) for x in wit), boxes=mc.boxes + (mp.boxes if mp else 0), seconds=time.process_time() - t0, note=note,
+        k=float(k))
 
 
 def _check_int(name, val, lo, hi):

@@ -39,7 +39,7 @@ import numpy as np
 from ftstab_mj.errors import LogWriteError
 from ftstab_mj.logs.files import Pump, can_pump, create_log, discard, write_errors
 from ftstab_mj.logs.scene import PLANE_HALF_THICKNESS, model_shapes, quat_rotate
-from ftstab_mj.metrics import bound_applies, envelope, envelope_kind, loop_certificate, stage_reasons
+from ftstab_mj.metrics import bound_applies, envelope, envelope_kind, loop_certificate, stage_reasons, time_bound
 from ftstab_mj.records import RunInfo, SampleBatch, format_table
 
 TIMELINE = "sim_time"
@@ -321,8 +321,8 @@ class RerunSink:
         if pump is not None:
             pump.close()
 
-    def _static_bounds(self, lp, V1_0: float) -> None:
-        """Settle level and Theorem 1's envelope for loop ``lp`` from its first V1 (V1_0)."""
+    def _static_bounds(self, lp, V1_0: float, z0) -> None:
+        """Settle level and Theorem 1's envelope for loop ``lp`` from its first V1 (V1_0) and z (z0)."""
         import rerun as rr
 
         base, rec = f"/loop/{lp.name}", self._rec
@@ -335,7 +335,7 @@ class RerunSink:
         if lp.law not in ("nominal", "robust"):
             return
         cert = loop_certificate(lp)
-        t, bound, T = envelope(cert, V1_0, duration if duration > 0 else math.inf)
+        t, bound, T = envelope(cert, V1_0, duration if duration > 0 else math.inf, T=time_bound(lp, z0))
         if len(t):
             rec.send_columns(f"{base}/V1/envelope", indexes=[rr.TimeColumn(TIMELINE, duration=t)],
                              columns=rr.Scalars.columns(scalars=_log10(bound)))
@@ -363,7 +363,7 @@ class RerunSink:
             base = f"/loop/{lp.name}"
             if lp.name not in self._V1_0:
                 self._V1_0[lp.name] = float(arrays["V1"][0])
-                self._static_bounds(lp, self._V1_0[lp.name])
+                self._static_bounds(lp, self._V1_0[lp.name], np.asarray(arrays["z"][0], dtype=float))
             idx = [rr.TimeColumn(TIMELINE, duration=t)]
             for plot, fields in PLOTS.items():
                 rec.send_columns(f"{base}/{plot}", indexes=idx, columns=rr.Scalars.columns(scalars=np.column_stack(
