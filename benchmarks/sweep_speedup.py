@@ -12,15 +12,18 @@ Cases:
 First the set-up cost of a row, in this process: CPU per row of 1 s and of 2 s rows (the task the
 engines call, 40 rows each, alternated, median of 5), extrapolated linearly to a 0 s row, both for a
 row validated by prepare() in this process (serial, forked workers) and for one the worker validates
-again (spawned and Dask workers). Then the fixed costs of the command, in a fresh process (median of
-3): interpreter, imports, load + expand + prepare, writing the table, and for Dask ``import
+again (spawned and Dask workers). Then the fixed costs of the command, in a fresh process with the
+command's environment (ftstab_mj.batch_env; median of 3): interpreter, imports, load + expand +
+prepare, writing the table, and for Dask ``import
 distributed`` and a LocalCluster of 2 workers started and closed; from them and the rows' CPU, the
 best speed-up 2 workers could give if starting them cost nothing. Then each configuration runs the
 real command in a fresh process (wall from the command's start: engine start-up included),
 alternately, --repeat times: serial, 2 dask workers (LocalCluster), 2 processes, and 2 workers of an
 external ``dask scheduler`` started once by this script (``dask worker --nworkers 2 --nthreads 1``:
 start-up paid once, as on a standing cluster). Prints median and range of the wall times, the
-speed-up of the medians over serial, the CPU of the command and its own workers (what a
+speed-up of the medians over serial (of the command's wall, as before), the sweep's own wall next
+to it (from the first run's start to the table written, as the command prints it: what the engines
+gain without the start-up; its ratio to serial's is labelled "x"), the CPU of the command and its own workers (what a
 configuration costs whatever the machine's other load), the 1-minute load average before each run,
 and checks that every configuration wrote the same table. The machine's other load counts: before each repeat,
 :func:`machine_parallelism` measures what 2 processes can gain at all at that moment.
@@ -29,6 +32,7 @@ and checks that every configuration wrote the same table. The machine's other lo
 import argparse
 import json
 import os
+import re
 import resource
 import statistics
 import subprocess
@@ -37,6 +41,7 @@ import tempfile
 import time
 from pathlib import Path
 
+from ftstab_mj.batch_env import batch_environment
 from ftstab_mj.sweep.table import VARYING_COLUMNS, read_table
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -156,7 +161,7 @@ def fixed_costs(folder: Path, sweep: Path, journal: Path) -> dict[str, tuple[flo
         subprocess.run([sys.executable, "-c", "pass"], check=True)
         start = time.perf_counter() - t0
         out = subprocess.run([sys.executable, str(script), str(sweep), str(journal), str(folder / "t.parquet")],
-                             cwd=ROOT, capture_output=True, text=True, check=True)
+                             cwd=ROOT, capture_output=True, text=True, check=True, env=batch_environment(dict(os.environ)))
         runs.append([("interpreter", start, start)] + [tuple(p) for p in json.loads(out.stdout.strip().splitlines()[-1])])
     return {name: (statistics.median(r[k][1] for r in runs), statistics.median(r[k][2] for r in runs))
             for k, (name, _, _) in enumerate(runs[0])}
@@ -237,15 +242,15 @@ def main():
                   f"splitting the rows evenly give at best {(fixed + rows_cpu) / (fixed + rows_cpu / 2):.2f}x", flush=True)
         configs = {
             "serial": ("--workers", "1"),
-            "dask, 2 workers": ("--workers", "2"),
-            "processes, 2 workers": ("--engine", "processes", "--workers", "2"),
+            "dask, 2 workers": ("--engine", "dask", "--workers", "2"),
+            "processes, 2 workers": ("--workers", "2"),
         }
         procs = ()
         if not args.no_external:
             address, procs = start_external(tmp)
             configs["external dask, 2 workers"] = ("--scheduler", address)
         try:
-            walls, cpus, tables = {}, {}, {}
+            walls, sweeps, cpus, tables = {}, {}, {}, {}
             capacity = []
             for rep in range(args.repeat):
                 capacity.append(machine_parallelism())
@@ -264,8 +269,11 @@ def main():
                     cpu = (r1.ru_utime - r0.ru_utime) + (r1.ru_stime - r0.ru_stime)
                     if proc.returncode != 0:
                         sys.exit(f"{name}: exit {proc.returncode}: {proc.stderr.strip().splitlines()[-1]}")
-                    print(f"{name:<26} {wall:6.2f} s wall {cpu:6.2f} s CPU   (load before: {load:.2f})", flush=True)
+                    own = float(re.search(r"\(([0-9.]+) s from the first run's start to the table\)", proc.stdout)[1])
+                    print(f"{name:<26} {wall:6.2f} s wall ({own:5.2f} s of sweep) {cpu:6.2f} s CPU   "
+                          f"(load before: {load:.2f})", flush=True)
                     walls.setdefault(name, []).append(wall)
+                    sweeps.setdefault(name, []).append(own)
                     cpus.setdefault(name, []).append(cpu)
                     table = read_table(out / f"{args.case}.parquet")
                     tables[name] = {c: v for c, v in table.items() if c not in VARYING_COLUMNS}
@@ -274,11 +282,13 @@ def main():
                 p.terminate()
                 p.wait(timeout=30)
         n = len(tables["serial"]["row"])
-        serial = statistics.median(walls["serial"])
-        print(f"\n{n} runs, median [min, max] of {args.repeat}, on {os.cpu_count()} cores:")
+        serial, serial_own = statistics.median(walls["serial"]), statistics.median(sweeps["serial"])
+        print(f"\n{n} runs, median [min, max] of {args.repeat}, on {os.cpu_count()} cores; speed-up: of the "
+              f"command's wall over serial's; sweep: wall from the first run's start to the table written:")
         for name, ws in walls.items():
-            med = statistics.median(ws)
+            med, own = statistics.median(ws), statistics.median(sweeps[name])
             print(f"  {name:<26} {med:6.2f} s [{min(ws):.2f}, {max(ws):.2f}]   speed-up {serial / med:4.2f}   "
+                  f"sweep {own:5.2f} s [{min(sweeps[name]):.2f}, {max(sweeps[name]):.2f}] (x{serial_own / own:4.2f})   "
                   f"CPU {statistics.median(cpus[name]):6.2f} s")
         print(f"  the machine meanwhile: 2 processes x{statistics.median(capacity):.2f} faster than 1 on pure-Python "
               f"work (median; range {min(capacity):.2f} to {max(capacity):.2f})")

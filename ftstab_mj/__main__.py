@@ -25,14 +25,7 @@ for _name in ("SIGINT", "SIGTERM", "SIGHUP"):
 
 import sys  # noqa: E402 - after the handlers, on purpose
 
-# The verbs that run many simulations, one per worker process, and draw no 3-D scene. Their
-# processes get, unless the environment says otherwise: one OpenBLAS thread (their matrices are
-# r x r with r <= 6, too small for BLAS to thread, and N workers with a thread per core each would
-# oversubscribe the cores; OpenBLAS starting its threads costs ~0.05 s of CPU at `import numpy`),
-# and MuJoCo without OpenGL (`import mujoco` then skips loading GLFW: ~0.05 s). Worker processes
-# inherit both. Set before anything imports NumPy or MuJoCo, which read them once, at load.
-BATCH_VERBS = ("sweep", "compare", "montecarlo")
-BATCH_ENVIRONMENT = {"OPENBLAS_NUM_THREADS": "1", "MUJOCO_GL": "disable"}
+from ftstab_mj.batch_env import BATCH_VERBS, batch_environment  # noqa: E402 - imports os only
 
 
 def main() -> int:
@@ -51,11 +44,8 @@ def main() -> int:
 
     if sys.argv[1:2] == ["run"]:
         gc.disable()
-    if sys.argv[1:2] and sys.argv[1] in BATCH_VERBS:
-        import os
-
-        for name, value in BATCH_ENVIRONMENT.items():
-            os.environ.setdefault(name, value)
+    if sys.argv[1:2] and sys.argv[1] in BATCH_VERBS:  # before anything imports NumPy or MuJoCo
+        batch_environment()
     try:
         from ftstab_mj import interrupts
 

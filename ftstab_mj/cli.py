@@ -560,8 +560,9 @@ def cmd_sweep(args) -> int:
         outcome = run_sweep(sweep.name, rows, task, out, identity, engine=engine, workers=args.workers,
                             scheduler=args.scheduler, resume=args.resume, fmt=args.format)
     counts = ", ".join(f"{n} {s}" for s, n in sorted(outcome.statuses.items()))
+    own = f" ({outcome.rows_wall_s:.2f} s from the first run's start to the table)" if outcome.ran else ""
     print(f"{outcome.done}/{outcome.total} runs in the table ({counts}); "
-          f"{outcome.ran} ran now in {outcome.elapsed_s:.1f} s")
+          f"{outcome.ran} ran now in {outcome.elapsed_s:.2f} s{own}")
     print(f"table: {outcome.table}")
     if args.report and outcome.done:
         from ftstab_mj.sweep.report import make_report

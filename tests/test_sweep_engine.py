@@ -153,6 +153,11 @@ def test_a_failing_combination_is_a_failed_row_and_the_sweep_finishes(tmp_path):
             assert t["status"][i] == "completed" and t["error"][i] == ""
             assert t["metrics.final_abs_z1"][i] > 0
     assert out.done == 12 and not out.interrupted
+    # the sweep's own wall: from the first run's start to the table written, within the call; serial runs
+    # follow one another inside it (2 ms: the two clocks, time.time and perf_counter, read apart)
+    assert sum(t["elapsed_s"]) <= out.rows_wall_s <= out.elapsed_s + 2e-3
+    again = run_sweep("s", rows, ChainTask(), tmp_path / "o", {}, resume=True, progress=None)
+    assert again.ran == 0 and again.rows_wall_s == 0.0  # nothing ran: no first run
 
 
 class InterruptAt:

@@ -53,7 +53,8 @@ MAX_CHUNK = 32  # rows per task at most: a lost chunk (dead worker) costs a resu
 
 
 def guarded(task: Callable[[int, tuple], dict], index: int, params: tuple) -> dict:
-    """``task(index, params)`` with any exception turned into a failed result; adds ``elapsed_s`` (wall s).
+    """``task(index, params)`` with any exception turned into a failed result; adds ``elapsed_s`` (wall s)
+    and ``started_at`` (when the run started, ``time.time()`` of the process that ran it: Unix s).
 
     A failed result is ``{"status": "failed", "error": "<ExceptionType>: <message>", "metrics": {}}``.
     KeyboardInterrupt is not caught: an interrupted run is not a result. The run holds
@@ -61,12 +62,14 @@ def guarded(task: Callable[[int, tuple], dict], index: int, params: tuple) -> di
     count the wait for it.
     """
     with ONE_RUN:
+        started_at = time.time()
         t0 = time.perf_counter()
         try:
             out = dict(task(index, params))
         except Exception as exc:  # noqa: BLE001 - any failure of one run is recorded, the sweep goes on
             out = {"status": FAILED, "error": f"{type(exc).__name__}: {exc}", "metrics": {}}
         out["elapsed_s"] = time.perf_counter() - t0
+    out["started_at"] = started_at
     return out
 
 

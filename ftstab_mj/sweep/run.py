@@ -30,7 +30,9 @@ from ftstab_mj.sweep.table import Journal, make_row, read_journal, write_table
 
 @dataclass
 class SweepOutcome:
-    """What a call of :func:`run_sweep` did. ``elapsed_s``: wall time of this call (s)."""
+    """What a call of :func:`run_sweep` did. ``elapsed_s``: wall time of this call (s); ``rows_wall_s``: wall
+    time from the start of its first run to the table written (s; 0 when nothing ran), i.e. without what
+    the call spent before a row could start (an engine's start-up)."""
 
     table: Path
     total: int  # rows of the sweep
@@ -41,6 +43,7 @@ class SweepOutcome:
     lost: list[int] = field(default_factory=list)  # rows lost by the engine (not in the table)
     interrupted: bool = False
     statuses: dict[str, int] = field(default_factory=dict)  # {status: rows of the table with it}
+    rows_wall_s: float = 0.0
 
 
 def fingerprint(rows: list[Row], identity: dict) -> str:
@@ -91,12 +94,14 @@ def run_sweep(name: str, rows: list[Row], task, out_dir, identity: dict, *, engi
     outcome = SweepOutcome(table_path, len(rows), len(done), 0, 0, 0.0)
     journal = Journal(journal_path)
     results = execute(((r.index, r.params) for r in todo), task, engine, workers, scheduler)
+    first_start = None  # time.time() at the start of the first run (its worker's clock: this machine's, or one kept in step)
     try:
         for i, result in results:
             if result is None:
                 outcome.lost.append(i)
                 _say(progress, f"row {i}: lost (its worker process died); --resume retries it")
                 continue
+            first_start = result["started_at"] if first_start is None else min(first_start, result["started_at"])
             r = by_index[i]
             row = make_row(i, r.sample, r.params, result)
             journal.append(row)
@@ -127,6 +132,8 @@ def run_sweep(name: str, rows: list[Row], task, out_dir, identity: dict, *, engi
     outcome.statuses = dict(Counter(row["status"] for row in done.values()))
     outcome.failed = outcome.done - outcome.statuses.get(COMPLETED, 0)
     outcome.elapsed_s = time.perf_counter() - t0
+    if first_start is not None:
+        outcome.rows_wall_s = time.time() - first_start
     if outcome.interrupted:
         _say(progress, f"interrupted: {outcome.done}/{len(rows)} runs in {table_path}; --resume runs the others")
     return outcome
