@@ -3,6 +3,8 @@
 (The speed itself is measured in benchmarks/sweep_speedup.py, never here.)
 """
 
+import json
+import os
 import subprocess
 import sys
 
@@ -131,8 +133,49 @@ def test_a_sweep_process_runs_with_one_blas_thread_and_without_opengl(tmp_path):
     the sweep runs, `import mujoco` loaded no GLFW, and the process has no thread but its own (OpenBLAS
     would have started one per core at `import numpy`)."""
     cart_sweep(tmp_path, samples=1)
-    env = {k: v for k, v in __import__("os").environ.items() if k not in ("OPENBLAS_NUM_THREADS", "MUJOCO_GL")}
+    env = {k: v for k, v in os.environ.items() if k not in ("OPENBLAS_NUM_THREADS", "MUJOCO_GL")}
     out = subprocess.run([sys.executable, "-c", BATCH_PROCESS, str(tmp_path / "cart.toml"), str(tmp_path / "o")],
                          capture_output=True, text=True, cwd=ROOT, env=env, timeout=120)
     assert out.returncode == 0, out.stderr
     assert out.stdout.split()[-4:] == ["0", "1", "False", "1"]
+
+
+LOCAL_CLUSTER = """
+import json, os
+from ftstab_mj.batch_env import batch_environment
+batch_environment()  # as under `ftstab sweep`
+
+
+def probe():  # in a worker: who its parent is, and what that parent runs
+    parent = os.getppid()
+    with open(f"/proc/{parent}/cmdline", "rb") as f:
+        cmdline = f.read()
+    with open(f"/proc/{parent}/maps") as f:
+        mujoco = any("mujoco" in line for line in f)
+    return {"parent": parent, "forkserver": b"forkserver" in cmdline, "mujoco": mujoco,
+            "parent_threads": len(os.listdir(f"/proc/{parent}/task"))}
+
+
+if __name__ == "__main__":
+    from ftstab_mj.sweep.engine import _dask_close, _dask_connect
+    client, cluster = _dask_connect(2, None)
+    try:
+        print(json.dumps({"me": os.getpid(), "workers": list(client.run(probe).values())}))
+    finally:
+        _dask_close(client, cluster)
+"""
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
+def test_a_local_dask_cluster_forks_its_workers_from_one_single_threaded_forkserver_that_loaded_mujoco(tmp_path):
+    """The LocalCluster's workers are children of a forkserver (not of the command: not spawned), the
+    same for both, with MuJoCo already loaded (they inherit the imports) and no thread but its main one
+    (so forking it is safe)."""
+    script = tmp_path / "cluster.py"
+    script.write_text(LOCAL_CLUSTER)
+    out = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, cwd=ROOT, timeout=240)
+    assert out.returncode == 0, out.stderr
+    seen = json.loads(out.stdout.strip().splitlines()[-1])
+    workers = seen["workers"]
+    assert len(workers) == 2 and workers[0]["parent"] == workers[1]["parent"] != seen["me"]
+    assert all(w["forkserver"] and w["mujoco"] and w["parent_threads"] == 1 for w in workers), workers

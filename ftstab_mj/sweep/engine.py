@@ -12,7 +12,9 @@ table). A run's result depends on its parameters only, so the table does not dep
   validated (runner.py); a spawned one pays ~0.3 s of CPU to import NumPy, MuJoCo and ftstab_mj.
 - ``dask``: a ``dask.distributed`` cluster, a ``LocalCluster`` of ``workers`` single-threaded
   processes by default, or the scheduler at ``scheduler`` (its workers must have ftstab_mj
-  installed). Processes, not threads: MuJoCo's control callback is one slot per process.
+  installed). Processes, not threads: MuJoCo's control callback is one slot per process. A local
+  cluster's workers are forked from a forkserver (:func:`local_worker_method`) that imported
+  distributed and what a row runs once, so a worker starts without paying those imports again.
 
 One simulation at a time per process, whatever the engine: :func:`guarded` holds the process's
 :data:`ftstab_mj.callback.ONE_RUN` lock for the whole run, so on an external cluster whose workers
@@ -146,6 +148,33 @@ def _processes(items, task, workers) -> Iterator[tuple[int, dict | None]]:
         pool.shutdown(wait=True, cancel_futures=True)
 
 
+def local_worker_method() -> str:
+    """How a LocalCluster's nannies start their worker processes: "forkserver" where the platform has
+    it (Linux, macOS), else "spawn" (Dask's default).
+
+    The forkserver is a fresh interpreter (started by fork + exec, safe whatever threads this process
+    runs) that imports distributed and the modules a row needs (runner.WORKER_MODULES) once; each
+    worker is a fork of it. Forking it is safe: it runs no thread but its main one (none of those
+    imports starts a thread; under ``ftstab`` OpenBLAS has none either, batch_env.py, and where it has
+    one, OpenBLAS's own fork handlers stop and restart it). A spawned worker pays the interpreter and
+    those imports itself (~0.5 s of CPU each). Python keeps one forkserver per process: started here
+    with our modules preloaded the first time (one that already runs is used as it is), it exits
+    after this process. The workers are its children, not this process's: getrusage(RUSAGE_CHILDREN)
+    of the command's parent counts neither unless that parent is a subreaper (the benchmark is).
+    """
+    import multiprocessing
+
+    if "forkserver" not in multiprocessing.get_all_start_methods():
+        return "spawn"
+    from multiprocessing import forkserver
+
+    from ftstab_mj.sweep.runner import WORKER_MODULES
+
+    multiprocessing.get_context("forkserver").set_forkserver_preload(["distributed", "ftstab_mj.sweep.runner", *WORKER_MODULES])
+    forkserver.ensure_running()  # with our preload list: distributed's own (set when a nanny starts) comes too late
+    return "forkserver"
+
+
 def _dask_connect(workers: int, scheduler: str | None):
     """(client, local cluster or None): a client of the scheduler at ``scheduler``, or of a new
     LocalCluster of ``workers`` single-threaded processes. EngineError when it cannot be reached."""
@@ -162,7 +191,8 @@ def _dask_connect(workers: int, scheduler: str | None):
         # when another cluster holds it). preload: each worker imports what a row needs as it starts
         # (runner.dask_setup), not when its first row arrives. No statistical profiler in our own
         # workers: it samples the running row's stack every 10 ms (about 7 % of a worker's CPU here)
-        with dask.config.set({"distributed.worker.profile.enabled": False}):  # the nannies pass it on
+        with dask.config.set({"distributed.worker.profile.enabled": False,  # the nannies pass it on
+                              "distributed.worker.multiprocessing-method": local_worker_method()}):
             cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=":0",
                                    silence_logs=logging.ERROR, preload=["ftstab_mj.sweep.runner"])
         return Client(cluster), cluster

@@ -77,16 +77,18 @@ class ScenarioTask:
         return {"status": status, "error": "" if status == COMPLETED else run.result.message, "metrics": run.metrics}
 
 
-def warm() -> None:
-    """Import what running a row needs (MuJoCo, the run loop, the metrics) and load the native kernel:
-    a Dask worker does it as it starts (:func:`dask_setup`), while the parent validates the rows,
-    instead of when its first row arrives."""
-    import ftstab_mj.metrics  # noqa: F401
-    import ftstab_mj.scenario.run  # noqa: F401
-    import ftstab_mj.sim  # noqa: F401
-    from ftstab_mj.native import available
+# what running a row imports (MuJoCo, the run loop, the metrics; ftstab_mj.native loads the C kernel)
+WORKER_MODULES = ("ftstab_mj.metrics", "ftstab_mj.scenario.run", "ftstab_mj.sim", "ftstab_mj.native")
 
-    available()
+
+def warm() -> None:
+    """Import :data:`WORKER_MODULES`: a Dask worker does it as it starts (:func:`dask_setup`), while the
+    parent validates the rows, instead of when its first row arrives (a local cluster's workers
+    inherit them from their forkserver: engine.py)."""
+    import importlib
+
+    for name in WORKER_MODULES:
+        importlib.import_module(name)
 
 
 def dask_setup(worker) -> None:
