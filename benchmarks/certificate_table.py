@@ -10,6 +10,13 @@ c_lower, the largest dV1/dt / V1^alpha that a gradient ascent with the controlle
 derivative finds from 512 starts, as (found + c_lower) / |c_lower| (the claim is that it is <= 0).
 
     python benchmarks/certificate_table.py [--budget S] [--rows N] [--no-soundness] [--rounding]
+    python benchmarks/certificate_table.py --against DIR [--repeat 3] [--select 10,14,...] [--budget S]
+
+--against DIR: before/after on the same rows. DIR is another source tree of the project (e.g.
+`git archive main | tar -x -C DIR`); each row is certified in a fresh process of each tree in turn,
+alternating A (DIR) and B (this tree), --repeat times: median CPU seconds with their range, the
+ratio A/B of the medians, and each side's status, c_lower and boxes (deterministic without a budget).
+--select: the row numbers (0-based, as listed in ROWS) to compare.
 
 --rounding: only the cost of one outward rounding (interval._up) against np.nextafter on 1e6
 floats, alternating the two, 15 rounds: median and range of the per-element times and their ratio.
@@ -58,6 +65,7 @@ ROWS = [  # (r, k, gains, origin)
     (6, -0.05, (0.62, 1.15, 1.54, 3.88, 39.13, 1e5), "6 decades"),
     (6, -0.02, (0.5534, 0.8051, 1.7204, 1.4749, 4.6221, 100.0), "designed"),
     (6, -0.02, _poles_at_minus_one(6), "poles at -1"),
+    (5, -0.01, (0.65, 1.2, 1.62, 12.63, 1000.0), "4 decades"),
 ]
 
 
@@ -77,13 +85,57 @@ def rounding():
           f"nextafter / _up = {np.median(ratio):.1f} [{ratio.min():.1f}, {ratio.max():.1f}]")
 
 
+_ONE = """
+import json, sys, time
+from ftstab_mj.control import HongController, certify
+r, k, gains, budget = json.loads(sys.argv[1])
+t = time.process_time()
+c = certify(HongController(r, k, tuple(gains)), budget=budget)
+print(json.dumps(dict(cpu=time.process_time() - t, status=c.status, c_lower=c.c_lower, c_upper=c.c_upper,
+                      boxes=c.boxes)))
+"""
+
+
+def against(ref, rows, repeat, budget):
+    """Each row in a fresh process of the reference tree (A) and of this one (B), alternating."""
+    import json
+    import os
+    import subprocess
+
+    here = str(Path(__file__).resolve().parents[1])
+    print(f"A = {ref}, B = {here}; CPU s per row, median [range] of {repeat} alternated runs")
+    print("| row | r | k | gains | A CPU s | B CPU s | A / B | A status, c_lower, boxes | B status, c_lower, boxes |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    for i in rows:
+        r, k, gains, origin = ROWS[i]
+        out = {"A": [], "B": []}
+        for _ in range(repeat):
+            for side, tree in (("A", ref), ("B", here)):
+                env = dict(os.environ, PYTHONPATH=tree, OPENBLAS_NUM_THREADS="1")
+                res = subprocess.run([sys.executable, "-c", _ONE, json.dumps([r, k, list(gains), budget])],
+                                     env=env, capture_output=True, text=True, check=True, cwd=tree)
+                out[side].append(json.loads(res.stdout.splitlines()[-1]))
+        cpu = {s: np.array([o["cpu"] for o in out[s]]) for s in out}
+        med = {s: float(np.median(cpu[s])) for s in cpu}
+        desc = {s: f"{out[s][-1]['status']}, {out[s][-1]['c_lower']:.6g}, {out[s][-1]['boxes']}" for s in out}
+        print(f"| {i} | {r} | {k:g} | {', '.join(f'{g:g}' for g in gains)} | {med['A']:.2f} [{cpu['A'].min():.2f}, "
+              f"{cpu['A'].max():.2f}] | {med['B']:.2f} [{cpu['B'].min():.2f}, {cpu['B'].max():.2f}] | "
+              f"{med['A'] / med['B']:.2f} | {desc['A']} | {desc['B']} |", flush=True)
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--budget", type=float, default=60.0, help="CPU seconds per row (default 60)")
     ap.add_argument("--rows", type=int, default=len(ROWS))
     ap.add_argument("--no-soundness", action="store_true", help="skip the adversarial search")
     ap.add_argument("--rounding", action="store_true", help="only time one outward rounding against np.nextafter")
+    ap.add_argument("--against", metavar="DIR", help="before/after: DIR is the reference source tree")
+    ap.add_argument("--repeat", type=int, default=3, help="--against: alternated runs per row and side")
+    ap.add_argument("--select", default=None, help="--against: comma-separated row numbers (default: all)")
     args = ap.parse_args()
+    if args.against:
+        rows = [int(x) for x in args.select.split(",")] if args.select else range(len(ROWS))
+        return against(args.against, rows, args.repeat, args.budget)
     if args.rounding:
         return rounding()
     print("| r | k | gains | origin | status | c_lower | c_upper | gap | exact c (k = 0) | c'_upper | boxes | CPU s |")
