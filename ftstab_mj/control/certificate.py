@@ -32,7 +32,7 @@ import numpy as np
 
 from ftstab_mj.control.hong import HongController
 from ftstab_mj.control.hong_terms import SLOTS, SimplifiedTerms, Terms, _power, exp_of
-from ftstab_mj.control.interval import Dual, Iv, _up
+from ftstab_mj.control.interval import Dual, Iv, _dn, _up
 from ftstab_mj.errors import ParameterError
 
 DEFAULT_SAMPLES = 20_000  # witness search: states sampled on the faces before the B&B
@@ -229,16 +229,17 @@ class _Ratio:
             keep = ~near
             g = [None if gg is None else Iv(np.where(keep, gg.lo, 0.0), np.where(keep, gg.hi, 0.0)) for gg in chain.g]
             g[d + slot] = Iv(np.where(near, 1.0, 0.0))
-            centre = 0.5 * (val.lo + val.hi)
-            extra[slot] = (near, centre, _up(np.maximum(_up(val.hi - centre), _up(centre - val.lo))))
+            extra[slot] = (near, val)
             return Dual(val, g)
+
+        centres = {}  # slot -> (near, the value phi takes at the centre of the form)
 
         def centre_factor(slot, x, e, op):
             val = e[0] if op == "value" else x.sig(e) if op == "sig" else x.pabs(e)
-            if slot not in extra:
+            if slot not in centres:
                 return val
-            near, centre, _ = extra[slot]
-            return Iv(np.where(near, centre, val.lo), np.where(near, centre, val.hi))
+            near, c = centres[slot]
+            return Iv(np.where(near, c, val.lo), np.where(near, c, val.hi))
 
         with np.errstate(all="ignore"):
             zs, j = [], 0
@@ -250,27 +251,64 @@ class _Ratio:
                     j += 1
             R = self._ratio(*self.t.evaluate(zs, box_factor)[:3])
             Rc = self.points(zc)  # R at the centres: a witness candidate
-            Fc = self._ratio(*self.t.evaluate([Iv(zc[:, i]) for i in range(r)], centre_factor)[:3]) if extra else Rc
-            rad = _up(np.maximum(_up(hi - mid), _up(mid - lo)))
-            mv = Fc.hi.copy()
+            # the mean-value form about Baumann's centre: per variable x in [lo, hi] with dR/dx in
+            # [a, b], the centre c where b (hi - c) = -a (c - lo) minimises the bound's term
+            # max over x, g of g (x - c) (c = hi where a >= 0, lo where b <= 0: monotone in x)
+            # Only where no factor is an extra variable: there F = R and the centre is a true state.
+            # Near a singular factor F(s, phi) is evaluated at the midpoint, where phi is within its
+            # range's half-width of phi(s); moving it to an end of that range breaks the identities
+            # (S = sig(v, beta), y - S = s) the enclosures of Terms.evaluate rely on.
+            free = np.ones(n, dtype=bool)
+            for near, _ in extra.values():
+                free &= ~near
+            cb = mid.copy()
+            for jj in range(d):
+                if R.g[jj] is not None:
+                    cb[:, jj] = np.where(free, _baumann(R.g[jj], lo[:, jj], hi[:, jj], mid[:, jj]), mid[:, jj])
+            zb = np.insert(cb, face, 1.0, axis=1)
+            for slot, (near, val) in extra.items():
+                centres[slot] = (near, 0.5 * (val.lo + val.hi))
+            Fb = self._ratio(*self.t.evaluate([Iv(zb[:, i]) for i in range(r)], centre_factor)[:3])
+            mv = Fb.hi.copy()
             score = np.zeros((n, d))
             for jj, g in enumerate(R.g):
                 if g is None:
                     continue
                 if jj < d:
-                    term = _up(g.mag() * rad[:, jj])
-                    score[:, jj] = term
+                    term = _term(g, lo[:, jj], hi[:, jj], cb[:, jj])
+                    score[:, jj] = g.mag() * (hi[:, jj] - lo[:, jj])  # the midpoint form's term (x2)
+                elif jj - d in extra:
+                    val = extra[jj - d][1]
+                    term = _term(g, val.lo, val.hi, centres[jj - d][1])
                 else:
-                    term = _up(g.mag() * extra[jj - d][2]) if jj - d in extra else 0.0
+                    continue
                 mv = _up(mv + term)
         ub = np.fmin(R.v.hi, mv)
         ub = np.where(np.isnan(ub), np.inf, ub)
+        rad = hi - lo
         # split where the mean-value form says the enclosure is widest; where it is unbounded
         # (a singular derivative in the box), split the widest side
         plain = ~np.isfinite(score).all(axis=1) | ~(score > 0).any(axis=1)
         split = np.where(plain, np.argmax(rad, axis=1), np.argmax(np.where(np.isfinite(score), score, 0.0), axis=1))
         lb = np.where(np.isnan(Rc.lo), -np.inf, Rc.lo)
         return ub, split, lb, zc
+
+
+def _baumann(g, lo, hi, mid):
+    """Baumann's centre in [lo, hi] (arrays) for a derivative enclosure g (Iv); mid where g is unbounded.
+    Any point of the box keeps the form sound: this choice only makes it tighter."""
+    a, b = g.lo, g.hi
+    with np.errstate(all="ignore"):
+        c = (b * hi - a * lo) / (b - a)
+    c = np.where(a >= 0, hi, np.where(b <= 0, lo, c))
+    c = np.where(np.isfinite(c) & np.isfinite(a) & np.isfinite(b), c, mid)
+    return np.clip(c, lo, hi)
+
+
+def _term(g, lo, hi, c):
+    """An upper bound of g (x - c) over g in the Iv g and x in [lo, hi] (arrays), outward-rounded."""
+    t = (g * Iv(_dn(lo - c), _up(hi - c))).hi
+    return np.where(np.isnan(g.lo) | np.isnan(g.hi), np.inf, t)
 
 
 @dataclass
@@ -421,7 +459,7 @@ def _maximise(obj: _Ratio, seeds, rtol, deadline, stop_if_positive, progress=Non
             rest = np.ones(len(ub), dtype=bool)
             rest[pick] = False
             keep = (lo[rest], hi[rest], face[rest], ub[rest], split[rest])
-            lo, hi, face, split = lo[pick], hi[pick], face[pick], split[pick]
+            lo, hi, face, split, ub = lo[pick], hi[pick], face[pick], split[pick], ub[pick]
         else:
             keep = None
         rows = np.arange(m)
@@ -430,7 +468,9 @@ def _maximise(obj: _Ratio, seeds, rtol, deadline, stop_if_positive, progress=Non
         hi1[rows, split] = cut
         lo2[rows, split] = cut
         lo, hi, face = np.concatenate([lo, lo2]), np.concatenate([hi1, hi]), np.concatenate([face, face])
+        parent = np.concatenate([ub, ub])
         ub, split = evaluate(lo, hi, face)
+        ub = np.minimum(ub, parent)  # a child lies in its parent: the parent's bound holds on it too
         if keep is not None:
             lo, hi, face = np.concatenate([keep[0], lo]), np.concatenate([keep[1], hi]), np.concatenate([keep[2], face])
             ub, split = np.concatenate([keep[3], ub]), np.concatenate([keep[4], split])
