@@ -130,12 +130,13 @@ def _certificate_text(hong, cert) -> str:
 
 
 def cmd_design(args) -> int:
-    from ftstab_mj.control.design import design
-
-    if args.gain_max <= args.gain_min:
-        raise UsageError(f"--gain-max: expected a value above --gain-min = {args.gain_min:g}, got {args.gain_max:g}")
+    from ftstab_mj.control.design import default_gain_max, design
     from ftstab_mj.control.hong import validate_hong
 
+    if args.gain_max is None:
+        args.gain_max = default_gain_max(args.r)
+    if args.gain_max <= args.gain_min:
+        raise UsageError(f"--gain-max: expected a value above --gain-min = {args.gain_min:g}, got {args.gain_max:g}")
     validate_hong(args.r, args.k, (1.0,) * args.r, check_hurwitz=False)  # k's range, before any work
     z0, region = _design_states(args)
     say = None if args.json else _progress_line()
@@ -143,7 +144,7 @@ def cmd_design(args) -> int:
         say(f"designing gains for r = {args.r}, k = {args.k:g} (objective {args.objective}) ...")
     try:
         found = design(args.r, args.k, args.objective, z0=z0, u_max=args.u_max, region=region,
-                       gain_min=args.gain_min, gain_max=args.gain_max, budget=args.budget)
+                       gain_min=args.gain_min, gain_max=args.gain_max, budget=args.budget, progress=say)
     finally:
         _end_progress(say)
     gains, cert = found.gains, found.certificate
@@ -758,7 +759,9 @@ def build_parser() -> argparse.ArgumentParser:
     dz.add_argument("--region", type=_numbers(0.0, 1e6, "positive"), default=None, metavar="R[,R2,...]",
                     help="with --u-max: the box |z_i| <= R_i (one R for every i, or r of them)")
     dz.add_argument("--gain-min", type=_number_in(GAIN_MIN, GAIN_MAX), default=0.1, help="smallest gain (default 0.1)")
-    dz.add_argument("--gain-max", type=_number_in(GAIN_MIN, GAIN_MAX), default=100.0, help="largest gain (default 100)")
+    dz.add_argument("--gain-max", type=_number_in(GAIN_MIN, GAIN_MAX), default=None,
+                    help="largest gain (default 100 for r <= 4, 1000 for r = 5, 1e5 for r = 6: longer chains need "
+                         "a larger last gain)")
     dz.add_argument("--budget", type=_number_in(0.01, 86400.0, what=" seconds"), default=None, metavar="SECONDS",
                     help="CPU seconds per candidate's certificate (default: until its gap is < 0.2 %%)")
     dz.add_argument("--json", action="store_true", help="print JSON: gains and certificate")

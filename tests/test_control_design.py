@@ -10,15 +10,34 @@ import pytest
 
 from conftest import run_cli
 from ftstab_mj.control import HongController, NominalLaw, certify
-from ftstab_mj.control.design import design, nelder_mead
+from ftstab_mj.control.design import default_gain_max, design, linear_c, nelder_mead
 from ftstab_mj.certificate_cache import cached_certify
 from ftstab_mj.ideal_chain import simulate_chain
 from ftstab_mj.scenario import load_scenario, shipped_scenarios
+from test_control_certificate import K0_SETS, exact_k0
 
 
 def test_nelder_mead_finds_a_quadratic_minimum():
     x, fx = nelder_mead(lambda x: float(np.sum((x - np.array([1.0, -2.0])) ** 2)), np.zeros(2), iters=400, tol=1e-14)
     np.testing.assert_allclose(x, [1.0, -2.0], atol=1e-5)
+
+
+def test_linear_c_is_the_exact_k0_value():
+    """The designer's float closed form of c at k = 0 against the 50-digit reference, on gain sets
+    of r = 1..6 spanning up to 6 decades (float eigenvalues of a matrix with entries up to ~l_r:
+    relative 1e-9 is ~1e7 ulps of headroom, far below what the search needs)."""
+    for gains in K0_SETS:
+        assert linear_c(gains) == pytest.approx(exact_k0(gains), rel=1e-9), gains
+
+
+def test_the_default_largest_gain_admits_a_linear_certificate():
+    """default_gain_max(r) leaves room for c > 0 at k = 0: the designer's own k = 0 search (closed
+    form, exact) finds c > 0 in the default box and its sound certificate agrees, r = 1..5 (r = 6
+    costs ~1 min of branch and bound at k = 0: benchmarks/certificate_table.py)."""
+    for r in range(1, 6):
+        found = design(r, 0.0, starts=0)
+        assert found.gains[-1] == default_gain_max(r) and found.certified, (r, found.gains)
+        assert found.certificate.c_lower <= linear_c(found.gains) * (1 + 1e-12) <= found.certificate.c_upper * (1 + 1e-9)
 
 
 @pytest.mark.parametrize("r, k", [(2, -0.2), (3, -0.1)])

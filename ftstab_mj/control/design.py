@@ -1,17 +1,28 @@
 """Gain design for Hong's controller: gains with a sound certificate (ftstab design).
 
 The search runs on log-gains with a deterministic Nelder-Mead simplex over a cheap estimate of
-the objective (the float ratio at fixed states of the certificate's faces, improved by a short
-climb: it can only over-estimate c). When the certificate's witness search (no branch and bound)
-refutes the gains a search ends on (a state with dV1/dt >= 0, common for r >= 5 where the fixed
-states are sparse), that state joins the fixed ones and the search goes on from there, up to
-REFUTE_ROUNDS times. Every candidate is then certified soundly
-(ftstab_mj.control.certificate.certify), and the best certified one by the certified objective is
-returned. Objectives:
+the objective: at k = 0 the closed form of c (linear_c, exact); for k < 0 the float ratio
+dV1/dt / V1^alpha at fixed states of the certificate's faces, improved by a short climb. That
+estimate can only over-estimate c, and the simplex goes wherever it over-estimates most. For
+r >= 5 and k < 0 the states that refute such gains have a nearly vanishing recursion variable
+(|s_4| ~ 1e-3 of the largest at r = 5), a thin layer that uniform states miss and where the powers
+|s_i|^(e_i - 1) of k < 0 differ most from the linear law; so half the states have log-uniform
+moduli 1e-6..1 (face_points, the distribution of the certificate's witness search).
+When the certificate's witness search (no branch and bound) still refutes the gains a search ends
+on, that state joins the fixed ones and the search goes on from there, up to REFUTE_ROUNDS times.
+
+The first search starts at the k = 0 optimum of the closed form (continuation from the linear
+law: k < 0 perturbs it), the others at geometric gain sequences. Without u_max the last gain is
+gain_max: V1 and the recursion variables s do not involve l_r, and dV1/dt = A(s) - l_r |s_r|^(1+e_r)
+with A independent of l_r, so c (a minimum over states of affine functions of l_r, non-decreasing)
+and T(z0) only improve with it. Every candidate is then certified soundly
+(ftstab_mj.control.certificate.certify, at most max_boxes boxes: deterministic), and the best
+certified one by the certified objective is returned; none certified: the best estimate with its
+"not certified" / "undecided" certificate, never a claim. Objectives:
 
 * ``max-c``: maximise c_lower (for a given k, c scales with the gains: multiplying every gain by
-  the same factor is not a dilation, so the search is over the whole gain vector, bounded by
-  ``gain_max``);
+  the same factor is not a dilation, so the search is over the gain vector, bounded by
+  ``gain_max``: l_1..l_{r-1}, or all r gains with u_max);
 * ``min-time``: minimise Theorem 1's guaranteed time bound for given initial states z0^(j),
   T = max_j V1(z0^(j))^(1 - alpha) / (c_lower (1 - alpha)), alpha = (2 + 2k)/(2 + k) (k < 0: at
   k = 0 there is no finite time). V1 depends on the gains too, so this is not max-c: larger gains
@@ -38,6 +49,7 @@ import numpy as np
 
 OBJECTIVES = ("max-c", "min-time")
 REFUTE_ROUNDS = 8  # searches per start, each after adding the state where the last result failed
+DESIGN_MAX_BOXES = 5_000_000  # branch-and-bound cap per candidate: deterministic, ~1 min of CPU at r = 5
 U_MARGIN = 1e-12  # relative: covers the float error of u0 at the vertex (module docstring)
 
 
@@ -80,12 +92,49 @@ def nelder_mead(f, x0, step=0.5, iters=300, tol=1e-7):
     return pts[i], vals[i]
 
 
+def linear_c(gains) -> float:
+    """c at k = 0 in closed form (float): the linear law's V1 = |e|^2 / 2 in the backstepping
+    coordinates e_1 = z_1, e_{i+1} = z_{i+1} + l_i e_i (e = T z), whose closed loop is e' = B e with
+    B = T A T^-1, so dV1/dt / V1 = 2 e^T B e / |e|^2 and c = 2 lambda_min(-(B + B^T) / 2).
+    Exact up to float rounding: the search objective at k = 0 and the start of the search at k < 0."""
+    g = np.asarray(gains, dtype=float)
+    r = len(g)
+    T = np.zeros((r, r))
+    T[0, 0] = 1.0
+    for i in range(1, r):
+        T[i] = g[i - 1] * T[i - 1]
+        T[i, i] += 1.0
+    A = np.diag(np.ones(r - 1), 1)
+    A[r - 1] = -g[-1] * T[r - 1]
+    with np.errstate(all="ignore"):
+        B = np.linalg.solve(T.T, (T @ A).T).T  # T A T^-1
+        c = 2.0 * float(np.linalg.eigvalsh(-(B + B.T) / 2.0)[0]) if np.isfinite(B).all() else -np.inf
+    return c if np.isfinite(c) else -np.inf
+
+
+def face_points(r: int, per_face: int, rng) -> np.ndarray:
+    """States on the r faces z_j = 1 of the cube, per_face each (per_face r, r): half uniform in
+    [-1, 1]^(r-1), half with log-uniform moduli 1e-6..1 (the failures of k < 0 lie in thin layers
+    where a recursion variable nearly vanishes, which uniform points miss: the distribution of the
+    certificate's witness search)."""
+    pts = []
+    for face in range(r):
+        x = rng.uniform(-1.0, 1.0, size=(per_face, r - 1))
+        half = per_face // 2
+        x[half:] = np.sign(x[half:]) * 10.0 ** rng.uniform(-6.0, 0.0, size=x[half:].shape)
+        pts.append(np.insert(x, face, 1.0, axis=1))
+    return np.concatenate(pts)
+
+
 def _estimate_c(r, k, gains, pts, rng):
-    """-max over the fixed face points pts (n, r) of the float ratio, improved by a short climb:
-    an estimate of c from above (cheap; the final candidate is certified soundly)."""
+    """-max over the fixed states pts (n, r) (recursion variables s on the faces) of the float
+    ratio, improved by a short climb: an estimate of c from above (cheap; the final candidate is
+    certified soundly). At k = 0 the closed form linear_c."""
     from ftstab_mj.control.certificate import _climb, _Ratio
     from ftstab_mj.control.hong_terms import Terms
 
+    if k == 0:
+        return linear_c(gains)
     obj = _Ratio(Terms(r, k, gains), "c")
     f = obj.floats(pts)
     top = pts[np.argsort(f)[-8:]]
@@ -135,15 +184,26 @@ class Design:
         return self.certificate is not None and self.certificate.certified
 
 
+def default_gain_max(r: int) -> float:
+    """The default largest gain for chains of length r: 100 up to r = 4, 1000 for r = 5, 1e5 for r = 6.
+    Longer chains need a larger last gain: the best c over [0.1, 100]^r of the linear law (k = 0,
+    closed form) is 0.31 at r = 5 and negative (-0.23) at r = 6, so no gain set in that box has a
+    certificate at k = 0; with 1000 and 1e5 it is 0.56 and 0.18."""
+    return 100.0 if r <= 4 else 1000.0 if r == 5 else 1e5
+
+
 def design(r: int, k: float, objective: str = "max-c", z0=None, u_max: float | None = None, region=None,
-           gain_min=0.1, gain_max=100.0, starts=3, iters=150, budget=None, seed=0) -> Design:
+           gain_min=0.1, gain_max=None, starts=3, iters=150, budget=None, seed=0, max_boxes=None,
+           progress=None) -> Design:
     """Gains l_1..l_r in [gain_min, gain_max]^r for ``objective`` (module docstring) with a sound
     certificate.
 
     z0: (m, r) initial states (min-time only); u_max, region (r,): |u0| <= u_max on |z_i| <= region[i]
     (both or neither). Returns the best certified candidate by the certified objective, else the
     best estimate with its (not certified / undecided) certificate. Deterministic for a given seed
-    (the candidates' certificates have no time budget unless ``budget``, CPU s per candidate).
+    (the candidates' certificates have no time budget unless ``budget``, CPU s per candidate;
+    max_boxes caps each one's branch and bound, default DESIGN_MAX_BOXES). gain_max None:
+    default_gain_max(r). progress(text), if given, is told what is being done.
     """
     from ftstab_mj.control.certificate import certify
     from ftstab_mj.control.hong import HongController, is_hurwitz
@@ -157,17 +217,20 @@ def design(r: int, k: float, objective: str = "max-c", z0=None, u_max: float | N
         z0 = np.atleast_2d(np.asarray(z0, dtype=float))
         if k >= 0 or z0.shape[-1] != r:
             raise ValueError("min-time needs k < 0 and initial states z0 of shape (m, r)")
+    gain_max = default_gain_max(r) if gain_max is None else gain_max
+    max_boxes = DESIGN_MAX_BOXES if max_boxes is None else max_boxes
+    say = progress or (lambda text: None)
     rng = np.random.default_rng(seed)
-    pts = []
-    for face in range(r):
-        x = rng.uniform(-1.0, 1.0, size=(2000, r - 1))
-        pts.append(np.insert(x, face, 1.0, axis=1))
-    pts = np.concatenate(pts)
+    pts = face_points(r, 2000, rng)
     lo, hi = np.log(gain_min), np.log(gain_max)
     alpha = (2.0 + 2.0 * k) / (2.0 + k)
+    # without u_max, l_r = gain_max: V1 and the recursion variables do not involve l_r and
+    # dV1/dt = A(s) - l_r |s_r|^(1 + e_r), so c and T(z0) only improve with l_r (module docstring)
+    free = r if u_max is not None else r - 1
 
     def gains_of(x):
-        return tuple(float(v) for v in np.exp(np.clip(x, lo, hi)))
+        g = tuple(float(v) for v in np.exp(np.clip(x, lo, hi)))
+        return g if free == r else g + (float(gain_max),)
 
     def feasible(g):
         return is_hurwitz(g) and (u_max is None or vertex_u0(r, k, g, region) <= u_max * (1.0 - U_MARGIN))
@@ -200,15 +263,28 @@ def design(r: int, k: float, objective: str = "max-c", z0=None, u_max: float | N
             x = np.maximum(x - np.log(2.0), lo)
         return x
 
+    def geometric(ratio):  # each gain `ratio` times the previous one
+        return (np.log(ratio) * np.arange(r) - np.log(ratio) * (r - 1) / 3.0)[:free]
+
+    def linear_cost(x):
+        g = gains_of(x)
+        return -linear_c(g) if feasible(g) else np.inf
+
+    # starts: the k = 0 optimum of the closed form (exact and cheap: the continuation from k = 0,
+    # where k < 0 is a perturbation of the linear law), then `starts` geometric gain sequences
+    x_lin = feasible_start(geometric(2.0))
+    if x_lin is not None and free:
+        for _ in range(3):  # restarts: the simplex collapses on the ridges of c
+            x_lin, _ = nelder_mead(linear_cost, x_lin, step=0.3, iters=1000, tol=1e-12)
+    inits = [(x_lin, 0.3)] + [(feasible_start(geometric(2.0 + 2.0 * s)), 0.7) for s in range(starts)]
     found = []  # (estimated cost, gains)
-    for s in range(starts):
-        ratio = 2.0 + 2.0 * s  # geometric starts: each gain `ratio` times the previous one
-        x0 = feasible_start(np.log(ratio) * np.arange(r) - np.log(ratio) * (r - 1) / 3.0)
+    for n, (x0, step) in enumerate(inits):
         if x0 is None:
             continue
-        x = x0
-        for _ in range(REFUTE_ROUNDS):  # search, then add the state that refutes the result (if any) and again
-            x, fx = nelder_mead(cost_max_c, x, step=0.7, iters=iters)
+        say(f"search {n + 1} of {len(inits)} ...")
+        x, fx = x0, cost_max_c(x0)
+        for _ in range(REFUTE_ROUNDS if free else 0):  # search, then add the state that refutes the result (if any) and again
+            x, fx = nelder_mead(cost_max_c, x, step=step, iters=iters)
             g = gains_of(x)
             if not np.isfinite(fx) or not is_hurwitz(g):
                 break
@@ -217,16 +293,19 @@ def design(r: int, k: float, objective: str = "max-c", z0=None, u_max: float | N
                 break
             z = np.array([quick.witness])
             pts = np.concatenate([pts, Terms(r, k, g).s_of(z)])
-        if objective == "min-time":  # from the max-c optimum, which stays a candidate: the estimate of T
+        if objective == "min-time" and free:  # from the max-c optimum, which stays a candidate: the estimate of T
             found.append((cost_min_time(x), tuple(_floor5(v) for v in gains_of(x))))  # can mislead the search
-            x, fx = nelder_mead(cost_min_time, x, step=0.7, iters=iters)
+            x, fx = nelder_mead(cost_min_time, x, step=step, iters=iters)
+        elif objective == "min-time":
+            fx = cost_min_time(x)
         found.append((fx, tuple(_floor5(v) for v in gains_of(x))))
     found = sorted(set(found))
     best, fallback = None, None
     for fx, g in found:
         if not np.isfinite(fx) or not feasible(g):
             continue
-        cert = certify(HongController(r, k, g), budget=budget)
+        say(f"certifying gains {', '.join(f'{v:g}' for v in g)} ...")
+        cert = certify(HongController(r, k, g), budget=budget, max_boxes=max_boxes)
         d = Design(g, cert, time_bound(cert, r, k, g, z0) if objective == "min-time" else None,
                    vertex_u0(r, k, g, region) if u_max is not None else None)
         score = d.time_bound if objective == "min-time" else -cert.c_lower
