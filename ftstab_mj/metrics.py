@@ -16,8 +16,9 @@ Every per-loop metric is defined by one function below (docstring: definition an
 Undefined or non-finite values are ``None`` (JSON null). Samples are read as the log stores
 them: non-finite entries count as NaN, so a live run and its replay give identical dicts.
 
-"The final window" is the last ``MetricSettings.final_fraction`` of the run's duration
-(at least one sample); "period" is the control period h: each sample's u is held for h.
+"The final window" is the last ``MetricSettings.final_fraction`` of the run's duration, and at most
+its last ``MetricSettings.final_window_max`` seconds (at least one sample; :func:`final_window_start`);
+"period" is the control period h: each sample's u is held for h.
 """
 
 from __future__ import annotations
@@ -203,6 +204,17 @@ def envelope_kind(m: dict) -> str:
         return "continuous-time guarantee"
     reason = m.get("workspace_left") or m.get("bound_applies_reason")
     return f"not a guarantee: {reason}" if reason else "not a guarantee: the true bounds exceed the assumed ones"
+
+
+def final_window_start(t0: float, n: int, h: float, ms) -> float:
+    """Where the final window of n samples of period h from t0 starts (s): the window is the samples with
+    t_k >= t0 + (1 - final_fraction) n h, or t_k >= t0 + n h - final_window_max when that is later (a run
+    longer than final_window_max / final_fraction: the window's length, and the memory its chattering
+    indices need, stop growing with the run's). ms: MetricSettings."""
+    cap = ms.final_window_max
+    if cap is not None and ms.final_fraction * n * h > cap:
+        return t0 + (n * h - cap)
+    return t0 + (1.0 - ms.final_fraction) * n * h
 
 
 def final_abs_max(z_final):
@@ -599,7 +611,8 @@ class _LoopStream:
     """The metrics of one loop from its batches ({field: array}, as logged); see :func:`loop_metrics`.
 
     Whole-run metrics are reduced batch by batch; the final-window ones at the end, from a ring of the
-    last samples: after n samples it holds at least window(n) = ceil(final_fraction n) + 2 of them, the
+    last samples: after n samples it holds at least window(n) = min(ceil(final_fraction n),
+    ceil(final_window_max / h)) + 2 of them, the
     most the final window can hold then or later (t_k = t_0 + k h: the window of a longer run starts
     later). ``n_total``: the most samples expected (a hint sizing the ring at once; None: it grows). A
     ring row is t, z (r), u, V1, phi_hat and, with stages, z_hat (r), u_applied.
@@ -657,14 +670,18 @@ class _LoopStream:
 
     def _window(self, n: int) -> int:
         """The most samples the final window of n samples holds: those with t_k >= t_0 + (1 - ff) n h,
-        at most ff n + 1 of them (+1 for rounding)."""
-        return int(math.ceil(self.info.metric_settings.final_fraction * n)) + 2
+        at most ff n + 1 of them, or with t_k >= t_0 + n h - cap, at most cap / h + 1 (+1 for rounding)."""
+        ms = self.info.metric_settings
+        most = math.ceil(ms.final_fraction * n)
+        if ms.final_window_max is not None:
+            most = min(most, math.ceil(ms.final_window_max / self.info.period))
+        return int(most) + 2
 
     def _final_window(self) -> _FinalWindow:
-        """The reductions of the final window: the samples with t_k >= t_0 + (1 - final_fraction) n h, or
-        the last sample when there is none."""
+        """The reductions of the final window: the samples from :func:`final_window_start` on, or the
+        last sample when there is none."""
         ms, h, n, ring = self.info.metric_settings, self.info.period, self.n, self.ring
-        start = self.first["t"] + (1.0 - ms.final_fraction) * n * h
+        start = final_window_start(self.first["t"], n, h, ms)
         fw = _FinalWindow(self.loop.r, self.stages is not None, ring.held)
         last = None
         for k, rows in enumerate(ring.chunks()):
@@ -749,7 +766,8 @@ class MetricsStream:
         metrics = stream.result(status)            # compute_metrics' dict
 
     Kept: per loop, running sums, extremes and first/last values for the whole-run metrics, and a ring
-    of the last ceil(final_fraction n) + 2 samples (n so far) of t, z, u, V1, phi_hat (z_hat, u_applied)
+    of the last min(ceil(final_fraction n), ceil(final_window_max / h)) + 2 samples (n so far) of t, z, u,
+    V1, phi_hat (z_hat, u_applied)
     for the final-window ones: in memory up to 1 MiB, beyond in a temporary file (_Ring). At the end the
     window is read back and reduced; only its u (and u_applied) is held whole, for the chattering
     indices. n_total (a hint: None when unknown, e.g. a log read as it streams) sizes the ring at once.

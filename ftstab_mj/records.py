@@ -65,12 +65,15 @@ class MetricSettings:
     last part of the run over which accuracy and chattering are measured; chatter_band: (low, high)
     in Hz, the band of the band-RMS chattering index (clipped to the Nyquist frequency 1 / (2 period));
     settle_z1: |z_1| below it (chain units, m or rad) counts as settled for the law-independent
-    settling time (every law has z_1, not every law has V1)."""
+    settling time (every law has z_1, not every law has V1); final_window_max: the final window's
+    longest duration in s (a run longer than final_window_max / final_fraction measures its last
+    final_window_max s: its memory stays flat; None: no limit, as in the logs written before it)."""
 
     settle_level: float = 1e-4
     final_fraction: float = 0.2
     chatter_band: tuple[float, ...] = (10.0, 1000.0)
     settle_z1: float = 1e-3
+    final_window_max: float | None = 100.0
 
 
 @dataclass(frozen=True)
@@ -104,8 +107,9 @@ class RunInfo:
         return cls(
             scenario=d["scenario"], loops=tuple(LoopInfo(**lp) for lp in d["loops"]),
             period=float(d["period"]), physics_step=float(d["physics_step"]),
-            metric_settings=MetricSettings(**{k: tuple(v) if isinstance(v, list) else v
-                                              for k, v in d.get("metric_settings", {}).items()}),
+            # a log written before final_window_max existed measured the whole final fraction
+            metric_settings=MetricSettings(**{"final_window_max": None, **{
+                k: tuple(v) if isinstance(v, list) else v for k, v in d.get("metric_settings", {}).items()}}),
             model_xml=d.get("model_xml"), body_names=tuple(d.get("body_names", ())))
 
 

@@ -43,7 +43,10 @@ def _whole_array_checks(info, lp, arrays, m):
         assert (m["effort_abs"], m["effort_sq"]) == (e_abs, e_sq)
     assert m["workspace_left"] == workspace_left(lp, z, u)
     assert m["phi_hat_max"] == float(np.max(a["phi_hat"])) and m["V1_final"] == float(V1[-1])
+    # the final window: the last final_fraction of the run, and no more than its last final_window_max s
     win = t >= t[0] + (1.0 - ms.final_fraction) * len(t) * h
+    if ms.final_window_max is not None:
+        win &= t >= t[0] + (len(t) * h - ms.final_window_max)
     assert m["final_window_start"] == float(t[win][0])
     assert m["final_abs_z_max"] == final_abs_max(z[win])
     assert m["chattering"] == chattering(u[win], h)
@@ -62,7 +65,23 @@ def _whole_array_checks(info, lp, arrays, m):
 
 @pytest.mark.parametrize("name,path", SHIPPED, ids=[n for n, _ in SHIPPED])
 def test_streamed_metrics_are_the_whole_arrays_metrics_and_replays(name, path, tmp_path):
-    sc = _short(path)
+    _check_streamed_metrics(_short(path), tmp_path)
+
+
+@pytest.mark.parametrize("name", ["cart_r2_nominal", "cart_r2_output_feedback"])
+def test_a_window_cut_to_final_window_max_is_the_definition_and_replays(name, tmp_path):
+    # 2100 samples at 1 ms: the final fifth is 0.42 s, cut to its last 0.3 s (301 samples); a loop with
+    # stages too (its estimation error and u_applied over the same window)
+    sc = load_scenario(dict(SHIPPED)[name], ["sim.duration=2.1", "sim.period=0.001", "sim.physics_step=0.001",
+                                             "metrics.final_window_max=0.3"])
+    metrics = _check_streamed_metrics(sc, tmp_path)
+    for m in metrics["loops"].values():
+        assert m["final_window_start"] == pytest.approx(1.8, abs=1e-12)
+
+
+def _check_streamed_metrics(sc, tmp_path) -> dict:
+    """Run sc: its streamed metrics against the definitions on the whole arrays, against replay, and
+    in batches of 7 with the ring in memory and in its file; returns them."""
     log = tmp_path / "run.mcap"
     run = run_scenario(sc, [McapSink(log)], keep_samples=True)
     res = run.result
@@ -88,6 +107,7 @@ def test_streamed_metrics_are_the_whole_arrays_metrics_and_replays(name, path, t
         for k in range(0, res.n_samples, 7):
             stream.update({name: {f: x[k:k + 7] for f, x in arrays.items()} for name, arrays in res.loops.items()})
         assert stream.result(res.status) == run.metrics
+    return run.metrics
 
 
 @pytest.mark.parametrize("limit", [1 << 30, 0, 4000], ids=["memory", "file", "memory-then-file"])

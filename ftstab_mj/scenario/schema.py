@@ -243,7 +243,7 @@ def frequency_band(v):
 
 EXTERNAL_CHECKS = {
     MetricSettings: {"settle_level": positive, "final_fraction": fraction, "chatter_band": frequency_band,
-                      "settle_z1": positive},
+                      "settle_z1": positive, "final_window_max": positive},
 }
 # Fields of Signal and SensorSpec that a scenario does not set: the seed is derived from Scenario.seed.
 SIGNAL_DERIVED = ("seed",)
