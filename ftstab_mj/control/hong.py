@@ -16,6 +16,7 @@ Two forms:
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import lru_cache
 from typing import NamedTuple
 
 import numpy as np
@@ -76,6 +77,11 @@ def gains_for_polynomial(coeffs) -> tuple[float, ...]:
 
 def is_hurwitz(gains) -> bool:
     """True when every root of :func:`nested_polynomial` has a negative real part."""
+    return _is_hurwitz(tuple(float(g) for g in gains))
+
+
+@lru_cache(maxsize=256)  # np.roots costs ~75 us; a sweep builds the same law 2-3 times per row (validation, run)
+def _is_hurwitz(gains: tuple[float, ...]) -> bool:
     roots = np.roots(nested_polynomial(gains))
     return bool(np.all(roots.real < 0.0))
 
