@@ -541,6 +541,11 @@ def _engine(args) -> str:
 
 
 def cmd_sweep(args) -> int:
+    engine = _engine(args)
+    if engine == "dask" and not args.scheduler and not args.resume:  # as engine.started_ahead below
+        from ftstab_mj.batch_env import start_forkserver
+
+        start_forkserver()  # the local cluster's workers' imports, made beside this process's own
     from pathlib import Path
 
     from ftstab_mj.scenario.shipped import find_sweep
@@ -548,7 +553,6 @@ def cmd_sweep(args) -> int:
     from ftstab_mj.sweep.engine import started_ahead
     from ftstab_mj.sweep.runner import prepare
 
-    engine = _engine(args)
     sweep = load_sweep(find_sweep(args.sweep))
     rows = expand(sweep)
     out = Path(args.out or Path("runs") / sweep.name)

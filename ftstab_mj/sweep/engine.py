@@ -152,27 +152,19 @@ def local_worker_method() -> str:
     """How a LocalCluster's nannies start their worker processes: "forkserver" where the platform has
     it (Linux, macOS), else "spawn" (Dask's default).
 
-    The forkserver is a fresh interpreter (started by fork + exec, safe whatever threads this process
-    runs) that imports distributed and the modules a row needs (runner.WORKER_MODULES) once; each
-    worker is a fork of it. Forking it is safe: it runs no thread but its main one (none of those
-    imports starts a thread; under ``ftstab`` OpenBLAS has none either, batch_env.py, and where it has
+    The forkserver (batch_env.start_forkserver) is a fresh interpreter, started by fork + exec (safe
+    whatever threads this process runs), that imports distributed and the modules a row needs once;
+    each worker is a fork of it. Forking it is safe: it runs no thread but its main one (none of those
+    imports starts a thread; under ``ftstab`` OpenBLAS has none either, batch_env.py; where it has
     one, OpenBLAS's own fork handlers stop and restart it). A spawned worker pays the interpreter and
-    those imports itself (~0.5 s of CPU each). Python keeps one forkserver per process: started here
-    with our modules preloaded the first time (one that already runs is used as it is), it exits
-    after this process. The workers are its children, not this process's: getrusage(RUSAGE_CHILDREN)
-    of the command's parent counts neither unless that parent is a subreaper (the benchmark is).
+    those imports itself (~0.5 s of CPU each). The workers are the forkserver's children, not this
+    process's: getrusage(RUSAGE_CHILDREN) of the command's parent counts neither unless that parent
+    is a subreaper (the benchmark is).
     """
-    import multiprocessing
+    from ftstab_mj.batch_env import start_forkserver
 
-    if "forkserver" not in multiprocessing.get_all_start_methods():
-        return "spawn"
-    from multiprocessing import forkserver
-
-    from ftstab_mj.sweep.runner import WORKER_MODULES
-
-    multiprocessing.get_context("forkserver").set_forkserver_preload(["distributed", "ftstab_mj.sweep.runner", *WORKER_MODULES])
-    forkserver.ensure_running()  # with our preload list: distributed's own (set when a nanny starts) comes too late
-    return "forkserver"
+    # started here with our preload list; distributed's own, set when a nanny starts, comes too late
+    return "forkserver" if start_forkserver() else "spawn"
 
 
 def _dask_connect(workers: int, scheduler: str | None):

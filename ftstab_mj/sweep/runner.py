@@ -77,15 +77,13 @@ class ScenarioTask:
         return {"status": status, "error": "" if status == COMPLETED else run.result.message, "metrics": run.metrics}
 
 
-# what running a row imports (MuJoCo, the run loop, the metrics; ftstab_mj.native loads the C kernel)
-WORKER_MODULES = ("ftstab_mj.metrics", "ftstab_mj.scenario.run", "ftstab_mj.sim", "ftstab_mj.native")
-
-
 def warm() -> None:
-    """Import :data:`WORKER_MODULES`: a Dask worker does it as it starts (:func:`dask_setup`), while the
+    """Import batch_env.WORKER_MODULES: a Dask worker does it as it starts (:func:`dask_setup`), while the
     parent validates the rows, instead of when its first row arrives (a local cluster's workers
     inherit them from their forkserver: engine.py)."""
     import importlib
+
+    from ftstab_mj.batch_env import WORKER_MODULES
 
     for name in WORKER_MODULES:
         importlib.import_module(name)
