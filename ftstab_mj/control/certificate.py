@@ -41,7 +41,9 @@ DEFAULT_RTOL = 2e-3  # relative gap c_upper - c_lower at which the B&B stops
 MAX_SAMPLES = 10_000_000
 DEFAULT_MAX_BOXES = 20_000_000  # work cap of one B&B (deterministic, unlike a time budget): ~2-3 min
 MAX_LIVE_BOXES = 2_000_000  # memory cap of the B&B (about 0.2 GB at r = 6)
-SPLIT_BATCH = 8192  # boxes split per round (their children are evaluated together: NumPy's overhead is per round)
+# boxes split per round: their children are evaluated together and NumPy's overhead is per round
+# (r = 5, k = -0.01: 22 % more boxes a CPU second than at 8192; small problems never reach it)
+SPLIT_BATCH = 32768
 CERTIFIED, NOT_CERTIFIED, UNDECIDED = "certified", "not certified", "undecided"
 
 
