@@ -7,7 +7,8 @@ parameters and of the source of the code that computes it (so a change of that c
 never a stale answer). The directory is ``$FTSTAB_CACHE_DIR``, else ``$XDG_CACHE_HOME/ftstab_mj``,
 else ``~/.cache/ftstab_mj``; when it cannot be written the cache is in-process only. A file that
 cannot be read back exactly (damaged, another version, another key) is ignored and recomputed.
-Only deterministic computations are cached: no time budget (the B&B stops at its gap or box cap).
+Only deterministic computations are cached: no time budget (the B&B stops at its gap or at the
+work limit ``max_boxes``, part of the key).
 """
 
 from __future__ import annotations
@@ -46,23 +47,25 @@ def cache_dir() -> Path:
     return Path(base) / "ftstab_mj"
 
 
-def cache_key(r: int, k: float, gains: tuple, form: str) -> str:
+def cache_key(r: int, k: float, gains: tuple, form: str, max_boxes: int = _cert.DEFAULT_MAX_BOXES) -> str:
     ident = json.dumps({"r": int(r), "k": float(k).hex(), "gains": [float(g).hex() for g in gains], "form": form,
                         "samples": _cert.DEFAULT_SAMPLES, "seed": _cert.DEFAULT_SEED, "rtol": _cert.DEFAULT_RTOL,
-                        "max_boxes": _cert.DEFAULT_MAX_BOXES, "code": code_version()}, sort_keys=True)
+                        "max_boxes": int(max_boxes), "code": code_version()}, sort_keys=True)
     return hashlib.sha256(ident.encode()).hexdigest()[:32]
 
 
-def cached_certify(r: int, k: float, gains: tuple, form: str = "full") -> _cert.Certificate:
-    """certify(HongController(r, k, gains, form)) with the defaults, from the cache when it is there."""
+def cached_certify(r: int, k: float, gains: tuple, form: str = "full", max_boxes: int = _cert.DEFAULT_MAX_BOXES,
+                   progress=None) -> _cert.Certificate:
+    """certify(HongController(r, k, gains, form), max_boxes=max_boxes) with the other defaults, from
+    the cache when it is there. progress(text): called now and then while it is computed (not on a hit)."""
     gains = tuple(float(g) for g in gains)
-    key = cache_key(r, k, gains, form)
+    key = cache_key(r, k, gains, form, max_boxes)
     if key in _MEMORY:
         return _MEMORY[key]
     path = cache_dir() / f"certificate-{key}.json"
     cert = _read(path, key)
     if cert is None:
-        cert = _cert.certify(_hong.HongController(r, k, gains, form=form))
+        cert = _cert.certify(_hong.HongController(r, k, gains, form=form), max_boxes=int(max_boxes), progress=progress)
         _write(path, key, cert)
     _MEMORY[key] = cert
     return cert

@@ -455,7 +455,12 @@ def cmd_run(args) -> int:
     # waits until the command ends, so the exit code is the one of the status the logs record
     with interrupts.run_scope(final=True):
         try:  # the pacer first: the logs and viewers get each batch when the clock has reached it
-            run = run_scenario(sc, (*live.sinks(), *sinks), batch_size=live.batch_size(sc.sim.period))
+            say_certificate = _progress_line()  # on a terminal, while a loop's certificate is computed
+            try:
+                run = run_scenario(sc, (*live.sinks(), *sinks), batch_size=live.batch_size(sc.sim.period),
+                                   progress=say_certificate)
+            finally:
+                _end_progress(say_certificate)
         except (CallbackError, LogWriteError) as exc:  # the controller raised, or a log could not be written
             print(f"error: run failed: {exc} ({logs_say('failed')})", file=sys.stderr)
             return 1

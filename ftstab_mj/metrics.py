@@ -38,11 +38,12 @@ def _num(x):
     return x if math.isfinite(x) else None
 
 
-def _certificate(r: int, k: float, gains: tuple, form: str):
-    """certify() of Hong's controller, computed once per parameter set (ftstab_mj.certificate_cache)."""
+def _certificate(r: int, k: float, gains: tuple, form: str, max_boxes: int, progress=None):
+    """certify() of Hong's controller within max_boxes boxes per bound, computed once per parameter
+    set and limit (ftstab_mj.certificate_cache)."""
     from ftstab_mj.certificate_cache import cached_certify
 
-    return cached_certify(r, k, gains, form)
+    return cached_certify(r, k, gains, form, max_boxes=max_boxes, progress=progress)
 
 
 # Metrics that depend on the certificate. Logs recorded before the sound certificate (their loop
@@ -53,23 +54,74 @@ CERTIFICATE_METHOD = "interval branch and bound"
 
 def certificate_summary(loop):
     """The loop's certificate as logged: {"method", "status", "c_lower", "c_upper", "c_prime_upper",
-    "c_prime_lower"} (c' bracketed as c is; None for a law not built on Hong's controller)."""
+    "c_prime_lower", "boxes", "box_limit", "note"} (c' bracketed as c is; boxes: evaluated by the
+    branch and bound; box_limit: the run's certificate_boxes, per bound; note: what the status
+    guarantees when the limit stopped the B&B, see :func:`certificate_note`). None for a law not
+    built on Hong's controller."""
     if not loop.hong:
         return None
     cert = loop_certificate(loop)
     return {"method": CERTIFICATE_METHOD, "status": cert.status, "c_lower": _num_or_none(cert.c_lower),
             "c_upper": _num_or_none(cert.c_upper), "c_prime_upper": _num_or_none(cert.c_prime_upper),
-            "c_prime_lower": _num_or_none(cert.c_prime_lower)}
+            "c_prime_lower": _num_or_none(cert.c_prime_lower), "boxes": int(cert.boxes),
+            "box_limit": int(loop.certificate_boxes), "note": certificate_note(cert, loop.certificate_boxes)}
+
+
+def certificate_note(cert, box_limit: int) -> str:
+    """What a run's certificate guarantees, in words, where it is not plain: undecided within the
+    work limit (no T(z0)), or certified with the gap still open at the limit (T(z0) guaranteed, from
+    c_lower, but looser than at convergence); "" for a converged certificate; the witness's note
+    for "not certified"."""
+    from ftstab_mj.control.certificate import CERTIFIED, DEFAULT_RTOL, UNDECIDED
+
+    if cert.form != "full":
+        return cert.note
+    if cert.status == UNDECIDED:
+        return (f"undecided within {box_limit} boxes (metrics.certificate_boxes): c > 0 is not proven, so "
+                "the run claims no T(z0) and no Theorem 3 bound; raise metrics.certificate_boxes")
+    if cert.status == CERTIFIED and cert.gap is not None and cert.gap > DEFAULT_RTOL:
+        return (f"certified within {box_limit} boxes (metrics.certificate_boxes) with the gap still "
+                f"{100 * cert.gap:.3g} % (the branch and bound stops at {100 * DEFAULT_RTOL:g} %): c >= c_lower "
+                "is guaranteed, so is T(z0) from it, looser than with a closed gap")
+    return "" if cert.status == CERTIFIED else cert.note
 
 
 def _num_or_none(x):
     return None if x is None else _num(x)
 
 
-def loop_certificate(loop):
-    """The Certificate of a LoopInfo's Hong controller (cached)."""
+def loop_certificate(loop, progress=None):
+    """The Certificate of a LoopInfo's Hong controller within its work limit (cached). progress(text):
+    called now and then while it is computed (a cache hit calls nothing)."""
     h = loop.hong
-    return _certificate(int(h["r"]), float(h["k"]), tuple(float(g) for g in h["gains"]), h.get("form", "full"))
+    return _certificate(int(h["r"]), float(h["k"]), tuple(float(g) for g in h["gains"]), h.get("form", "full"),
+                        int(loop.certificate_boxes), progress)
+
+
+PROGRESS_AFTER = 0.5  # s: a certificate computed faster than this shows no status line
+
+
+def run_certificates(info, progress=None) -> None:
+    """Compute (or find in the cache) the certificate of every loop of a run (RunInfo), before its
+    logs are opened: a first r >= 5 run may spend a while here, and a signal must still stop it.
+    progress(text): a status line for a terminal naming the loop, once a computation has lasted
+    PROGRESS_AFTER s and then at most every 0.2 s; "" at the end (clear the line)."""
+    import time
+
+    for loop in info.loops:
+        if not loop.hong:
+            continue
+        start, last = time.monotonic(), [0.0]
+
+        def say(text, name=loop.name, r=loop.r, n=loop.certificate_boxes, start=start):
+            now = time.monotonic()
+            if now - start >= PROGRESS_AFTER and now - last[0] >= 0.2:
+                last[0] = now
+                progress(f"certificate of loop {name} (r = {r}, at most {n} boxes per bound): {text}")
+
+        loop_certificate(loop, None if progress is None else say)
+    if progress is not None:
+        progress("")  # the status line is cleared (a no-op where nothing was said)
 
 
 # -- per-loop metric definitions -------------------------------------------------------------------
@@ -202,6 +254,10 @@ def envelope_kind(m: dict) -> str:
     cross the envelope once that small); else "not a guarantee" and why."""
     if m.get("bound_applies"):
         return "continuous-time guarantee"
+    cert = m.get("certificate")
+    if cert and cert.get("status") != "certified":
+        return f"not a guarantee: the certificate is {cert['status']}" + (
+            f" within {cert['box_limit']} boxes" if cert["status"] == "undecided" and cert.get("box_limit") else "")
     reason = m.get("workspace_left") or m.get("bound_applies_reason")
     return f"not a guarantee: {reason}" if reason else "not a guarantee: the true bounds exceed the assumed ones"
 

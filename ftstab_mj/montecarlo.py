@@ -86,7 +86,8 @@ def loop_info(sc, lp, law, plant) -> LoopInfo:
     """The LoopInfo a run of this loop would record (what metrics.time_bound and bound_applies read)."""
     phibar, gm, gM = plant.true_bounds([lp.disturbance.bounds()], [lp.gain.bounds()])
     return LoopInfo(name=lp.name, r=law.r, law=law.name, hong=law.base_info(), law_params=law.param_values(),
-                    true_phibar=float(phibar[0]), true_gamma_m=float(gm[0]), true_gamma_M=float(gM[0]))
+                    true_phibar=float(phibar[0]), true_gamma_m=float(gm[0]), true_gamma_M=float(gM[0]),
+                    certificate_boxes=sc.metrics.certificate_boxes)
 
 
 def _rows(info: LoopInfo, first: int, Z0, settle, V1_0, V1_end, u_max, status) -> list[dict]:

@@ -29,6 +29,13 @@ INTERRUPTED = "interrupted"  # Ctrl-C
 FAILED = "failed"  # any other error inside the run (e.g. an exception in the controller)
 STATUSES = (COMPLETED, DIVERGED, INTERRUPTED, FAILED)
 
+# The work limit of a run's certificate (boxes per bound; MetricSettings.certificate_boxes): about
+# 30 s of one core at r = 5, more than every shipped r <= 4 scenario needs to close its 0.2 % gap.
+RUN_CERTIFICATE_BOXES = 2_000_000
+# What a log recorded before that key existed used (the branch and bound's own cap): its replay
+# computes the same certificate.
+UNLIMITED_RUN_BOXES = 20_000_000
+
 
 @dataclass(frozen=True)
 class LoopInfo:
@@ -57,6 +64,8 @@ class LoopInfo:
     # filter_order} | None, "actuator": {u_max, rate_max, tau, dead_zone} (None: no limit),
     # "u_needed": the |u| the law's guarantee may ask for (None: no a priori bound), "u_needed_note"}.
     stages: dict | None = None
+    # The work limit of this loop's certificate (the run's MetricSettings.certificate_boxes)
+    certificate_boxes: int = RUN_CERTIFICATE_BOXES
 
 
 @dataclass(frozen=True)
@@ -67,13 +76,17 @@ class MetricSettings:
     settle_z1: |z_1| below it (chain units, m or rad) counts as settled for the law-independent
     settling time (every law has z_1, not every law has V1); final_window_max: the final window's
     longest duration in s (a run longer than final_window_max / final_fraction measures its last
-    final_window_max s: its memory stays flat; None: no limit, as in the logs written before it)."""
+    final_window_max s: its memory stays flat; None: no limit, as in the logs written before it);
+    certificate_boxes: the work limit of the run's certificate, boxes the branch and bound may evaluate
+    for c and again for c' (deterministic, unlike a time budget: the same log on every machine);
+    undecided within it, the run claims no T(z0)."""
 
     settle_level: float = 1e-4
     final_fraction: float = 0.2
     chatter_band: tuple[float, ...] = (10.0, 1000.0)
     settle_z1: float = 1e-3
     final_window_max: float | None = 100.0
+    certificate_boxes: int = RUN_CERTIFICATE_BOXES
 
 
 @dataclass(frozen=True)
@@ -105,10 +118,12 @@ class RunInfo:
     def from_dict(cls, d: dict) -> "RunInfo":
         """Inverse of :meth:`to_dict` (a log stores RunInfo as JSON; replay rebuilds it)."""
         return cls(
-            scenario=d["scenario"], loops=tuple(LoopInfo(**lp) for lp in d["loops"]),
+            scenario=d["scenario"],
+            loops=tuple(LoopInfo(**{"certificate_boxes": UNLIMITED_RUN_BOXES, **lp}) for lp in d["loops"]),
             period=float(d["period"]), physics_step=float(d["physics_step"]),
-            # a log written before final_window_max existed measured the whole final fraction
-            metric_settings=MetricSettings(**{"final_window_max": None, **{
+            # a log written before final_window_max existed measured the whole final fraction, and one
+            # written before certificate_boxes existed had the branch and bound's own cap
+            metric_settings=MetricSettings(**{"final_window_max": None, "certificate_boxes": UNLIMITED_RUN_BOXES, **{
                 k: tuple(v) if isinstance(v, list) else v for k, v in d.get("metric_settings", {}).items()}}),
             model_xml=d.get("model_xml"), body_names=tuple(d.get("body_names", ())))
 
@@ -194,7 +209,8 @@ def format_table(metrics: dict) -> str:
             if key in ("law", "theorem3"):
                 continue
             if key == "certificate" and val:
-                val = f"{val['status']}, c in [{_fmt(val['c_lower'])}, {_fmt(val['c_upper'])}] (guaranteed)"
+                note = f"; {val['note']}" if val.get("note") else ""
+                val = f"{val['status']}, c in [{_fmt(val['c_lower'])}, {_fmt(val['c_upper'])}] (guaranteed){note}"
             lines.append(f"  {key:<26} {_with_unit(key, val)}")
         th = m.get("theorem3")
         if th:

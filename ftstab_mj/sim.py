@@ -200,6 +200,7 @@ class Simulation:
     def run_info(self, scenario: dict | None = None, metric_settings: MetricSettings | None = None) -> RunInfo:
         phibar, gm, gM = self.plant.true_bounds([L.disturbance.bounds() for L in self.loops],
                                                 [L.gain.bounds() for L in self.loops])
+        metric_settings = metric_settings or MetricSettings()
         infos = []
         for i, (L, law) in enumerate(zip(self.loops, self.laws)):
             infos.append(LoopInfo(name=L.name, r=law.r, law=law.name, hong=law.base_info(),
@@ -207,9 +208,10 @@ class Simulation:
                                   true_gamma_m=float(gm[i]), true_gamma_M=float(gM[i]),
                                   workspace=self.plant.loop_workspace(i, float(L.ref)),
                                   stages=None if self.stages[i] is None else describe_stages(
-                                      self.stages[i], law, L.z0 if len(L.z0) else np.zeros(law.r))))
+                                      self.stages[i], law, L.z0 if len(L.z0) else np.zeros(law.r)),
+                                  certificate_boxes=metric_settings.certificate_boxes))
         return RunInfo(scenario=dict(scenario or {}), loops=tuple(infos), period=self.period,
-                       physics_step=self.physics_step, metric_settings=metric_settings or MetricSettings(),
+                       physics_step=self.physics_step, metric_settings=metric_settings,
                        model_xml=self.model_xml, body_names=tuple(self.plant.body_names))
 
     # -- state ------------------------------------------------------------------------------------

@@ -96,6 +96,11 @@ def fraction(v):
     return None if 0 < v <= 1 else "a number in (0, 1]"
 
 
+def box_count(v):
+    """A work limit of the branch and bound (boxes), as control.certificate.certify takes it."""
+    return None if 1 <= v <= 10 ** 10 else "an integer number of boxes in [1, 10^10]"
+
+
 def time_step(v):
     # 1e-7 s is 10 million steps per simulated second; below it a run is an error, not a study.
     return None if v >= 1e-7 else "a time step >= 1e-7 s"

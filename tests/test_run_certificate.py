@@ -78,7 +78,7 @@ def test_the_v1_enclosure_holds_the_controllers_v1_and_is_tight(r, k, gains):
 
 def _metrics_with(cert_of, duration=2.0):
     """The metrics of a synthetic adaptive r = 2 run (constant phi = 0.5: Theorem 3's Delta depends on
-    c') whose certificate is cert_of(r, k, gains, form)."""
+    c') whose certificate is cert_of(r, k, gains, form, box limit, progress)."""
     from synthetic_runs import synthetic_run
 
     from ftstab_mj import metrics as mt
@@ -104,14 +104,14 @@ def test_a_pin_accepts_another_converged_branch_and_bound_and_rejects_a_wrong_br
     from ftstab_mj.certificate_cache import cached_certify
     from ftstab_mj.expectations import check_metrics, pin_expectations
 
-    info, pinned_from = _metrics_with(lambda r, k, g, form: cached_certify(r, k, g, form))
+    info, pinned_from = _metrics_with(lambda r, k, g, form, n, say: cached_certify(r, k, g, form, n))
     pins = pin_expectations(pinned_from, info)
     assert all(o.ok for o in check_metrics(pinned_from, pins))
     spec = pins["loops"]["cart"]["certificate"]["c_lower"]
     assert set(spec) == {"min", "max"} and "theorem3" in pins["loops"]["cart"]
 
     tight = certify(HongController(2, -0.2, (1.0, 2.0)), rtol=1e-5)
-    _, m = _metrics_with(lambda r, k, g, form: tight)
+    _, m = _metrics_with(lambda r, k, g, form, n, say: tight)
     new, old = m["loops"]["cart"], pinned_from["loops"]["cart"]
     assert new["certificate"]["c_lower"] != old["certificate"]["c_lower"]
     assert new["time_bound"] != old["time_bound"] and new["theorem3"]["Delta"] != old["theorem3"]["Delta"]
@@ -126,6 +126,125 @@ def test_a_pin_accepts_another_converged_branch_and_bound_and_rejects_a_wrong_br
                         (replace(tight, c_upper=tight.c_upper * 1.01), ("certificate.c_upper",)),
                         (replace(tight, c_prime=high_cp, c_prime_upper=high_cp, c_prime_lower=high_cp / 1.001),
                          ("certificate.c_prime_upper", "theorem3.Delta"))):
-        _, m = _metrics_with(lambda r, k, g, form, w=wrong: w)
+        _, m = _metrics_with(lambda r, k, g, form, n, say, w=wrong: w)
         failed = {o.path for o in check_metrics(m, pins) if not o.ok}
         assert {f"loops.cart.{key}" for key in keys} <= failed, failed
+
+
+# -- the run's certificate: a deterministic work limit (metrics.certificate_boxes) ------------------
+
+def _run_json(capsys, tmp_path, name, *sets):
+    import json
+
+    from ftstab_mj.cli import main
+
+    args = ["run", name, "--out", str(tmp_path), "--json"]
+    for s in sets:
+        args += ["--set", s]
+    assert main(args) == 0
+    return json.loads(capsys.readouterr().out)["loops"]
+
+
+def test_a_limit_that_stops_the_branch_and_bound_before_c_is_proven_leaves_no_time_bound(tmp_path, capsys):
+    """cart_r3_robust (certified at 0.2 % within 2790 boxes) with metrics.certificate_boxes = 50:
+    the run's certificate is undecided, and its metrics say so: no T(z0), no guarantee, a note
+    naming the limit; the log records the limit, so its replay recomputes the same metrics."""
+    import json
+
+    from ftstab_mj.cli import main
+    from ftstab_mj.logs.reader import read_log
+    from ftstab_mj.metrics import envelope_kind
+
+    m = _run_json(capsys, tmp_path, "cart_r3_robust", "sim.duration=0.2", "metrics.certificate_boxes=50")["cart"]
+    cert = m["certificate"]
+    assert cert["status"] == "undecided" and cert["box_limit"] == 50 and cert["boxes"] >= 50
+    assert "undecided within 50 boxes (metrics.certificate_boxes)" in cert["note"] and "no T(z0)" in cert["note"]
+    assert m["time_bound"] is None and m["bound_applies"] is False and m["beat_bound"] is None
+    assert envelope_kind(m) == "not a guarantee: the certificate is undecided within 50 boxes"
+    log = tmp_path / "cart_r3_robust.mcap"
+    info = read_log(log).info
+    assert info.metric_settings.certificate_boxes == 50 and info.loops[0].certificate_boxes == 50
+    assert main(["replay", str(log), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["loops"]["cart"] == m
+    assert main(["replay", str(log)]) == 0
+    out = capsys.readouterr().out
+    assert "identical to the ones recomputed" in out and "undecided within 50 boxes" in out
+
+
+def test_a_limit_reached_once_c_is_proven_gives_a_looser_guaranteed_time_bound(tmp_path, capsys):
+    """At 1000 boxes the same certificate has proven c > 0 (the B&B proves that first) but not closed
+    its gap: certified, the gap said in the note, and T(z0) = V1^(1-a)/(c_lower (1-a)) from that
+    smaller c_lower, above the converged run's by exactly their ratio of c_lower."""
+    limited = _run_json(capsys, tmp_path, "cart_r3_robust", "sim.duration=0.2", "metrics.certificate_boxes=1000")["cart"]
+    full = _run_json(capsys, tmp_path, "cart_r3_robust", "sim.duration=0.2")["cart"]
+    a, b = limited["certificate"], full["certificate"]
+    assert a["status"] == b["status"] == "certified" and b["note"] == ""
+    assert a["c_lower"] < (1 - 2e-3) * b["c_lower"] and "with the gap still" in a["note"]
+    assert limited["bound_applies"] and limited["time_bound"] > full["time_bound"]
+    assert limited["time_bound"] == pytest.approx(full["time_bound"] * b["c_lower"] / a["c_lower"], rel=1e-9)
+
+
+@pytest.mark.parametrize("value, found", [("0", "0"), ("1.5", "1.5"), ('"many"', "'many'"), ("100000000000", "100000000000")])
+def test_a_bad_certificate_boxes_is_one_line_naming_the_key(value, found):
+    from conftest import run_cli
+
+    res = run_cli("run", "cart_r2_nominal", "--set", f"metrics.certificate_boxes={value}", "--out", "/nonexistent/x")
+    assert res.returncode == 2 and res.stdout == ""
+    (line,) = res.stderr.strip().splitlines()
+    assert "metrics.certificate_boxes" in line and found in line, line
+
+
+def test_a_log_recorded_before_the_limit_replays_with_the_branch_and_bounds_own_cap():
+    from synthetic_runs import synthetic_run
+
+    from ftstab_mj.control.certificate import DEFAULT_MAX_BOXES
+    from ftstab_mj.records import RUN_CERTIFICATE_BOXES, RunInfo
+
+    info, _, _, _ = synthetic_run("nominal", duration=0.01, with_model=False)
+    d = info.to_dict()
+    assert info.loops[0].certificate_boxes == info.metric_settings.certificate_boxes == RUN_CERTIFICATE_BOXES
+    d["metric_settings"].pop("certificate_boxes")
+    d["loops"][0].pop("certificate_boxes")
+    old = RunInfo.from_dict(d)
+    assert old.metric_settings.certificate_boxes == old.loops[0].certificate_boxes == DEFAULT_MAX_BOXES
+
+
+def test_the_certificates_are_computed_before_any_log_opens_with_a_progress_line(tmp_path, monkeypatch):
+    """run_scenario computes each loop's certificate before it opens a sink (a sink's open finds it
+    in the cache), calling progress with a line naming the loop and its limit while the branch and
+    bound runs (here from its start: PROGRESS_AFTER = 0), then "" (clear the line); a second run finds it
+    cached and says nothing but ""."""
+    from ftstab_mj import certificate_cache as cc
+    from ftstab_mj import metrics as mt
+    from ftstab_mj.scenario import find_scenario, load_scenario
+    from ftstab_mj.scenario.run import run_scenario
+
+    monkeypatch.setenv("FTSTAB_CACHE_DIR", str(tmp_path))
+    cc.clear_memory()
+    sc = load_scenario(find_scenario("cart_r3_robust"), ["sim.duration=0.05", "metrics.certificate_boxes=3001"])
+
+    class Opened:
+        cached = None
+
+        def open(self, info):
+            h = info.loops[0].hong
+            Opened.cached = cc.cache_key(h["r"], h["k"], tuple(h["gains"]), h["form"], 3001) in cc._MEMORY
+
+        def write(self, batch):
+            pass
+
+        def close(self, status, metrics, message=""):
+            pass
+
+    lines = []
+    monkeypatch.setattr(mt, "PROGRESS_AFTER", 0.0)
+    try:
+        run_scenario(sc, (Opened(),), progress=lines.append)
+        assert Opened.cached is True
+        assert lines[-1] == "" and len(lines) >= 2  # at least the first round of the B&B is shown
+        assert all(t.startswith("certificate of loop cart (r = 3, at most 3001 boxes per bound): c") for t in lines[:-1])
+        again = []
+        run_scenario(sc, (Opened(),), progress=again.append)
+        assert again == [""]
+    finally:
+        cc.clear_memory()

@@ -28,10 +28,12 @@ class ScenarioRun:
     metrics: dict
 
 
-def record(run, sinks=(), metrics: bool = False):
+def record(run, sinks=(), metrics: bool = False, progress=None):
     """Drive ``run`` (a ftstab_mj.sim.Run) to its end with every sink observing it: open with
     run.info, write each batch, then close with the status and, with ``metrics``, the metrics streamed
     from the batches (ftstab_mj.metrics.MetricsStream; {} without). Returns (RunResult, metrics dict).
+    With ``metrics`` the loops' certificates are computed first, before any sink is opened
+    (metrics.run_certificates; progress(text) now and then while one is computed).
 
     A signal (Ctrl-C, SIGTERM, SIGHUP: ftstab_mj.interrupts) ends the run "interrupted" (the
     samples of the batch cut short are written, metrics computed, sinks closed). It never cuts the
@@ -41,8 +43,10 @@ def record(run, sinks=(), metrics: bool = False):
     are those of the samples. Any other exception (the controller's CallbackError, a sink's
     LogWriteError) closes the sinks "failed" after writing what was recorded, and is re-raised.
     """
-    from ftstab_mj.metrics import MetricsStream
+    from ftstab_mj.metrics import MetricsStream, run_certificates
 
+    if metrics:  # before any log is opened (inside interrupts.critical() a signal would wait for it)
+        run_certificates(run.info, progress)
     stream = MetricsStream(run.info, run.n_total) if metrics else None
     opened = []
 
@@ -110,11 +114,13 @@ def _close(sinks, status, metrics, message, quiet: bool = False) -> None:
         raise first
 
 
-def run_scenario(sc: Scenario, sinks=(), keep_samples: bool = False, batch_size: int = 1000) -> ScenarioRun:
+def run_scenario(sc: Scenario, sinks=(), keep_samples: bool = False, batch_size: int = 1000,
+                 progress=None) -> ScenarioRun:
     """Run the scenario; every sink observes it and is closed with the metrics (streamed: memory
     does not grow with the run). keep_samples: also keep every sample in ``result`` (RunResult.loops).
     batch_size: samples handed to the sinks at once (smaller for a run paced to the clock; the
-    samples do not depend on it).
+    samples do not depend on it). progress(text): a status line while a loop's certificate is
+    computed, before the first sample (``ftstab run`` shows it on a terminal).
 
     Raises ftstab_mj.errors.CallbackError when the controller raised (sinks closed as "failed").
     """
@@ -126,7 +132,7 @@ def run_scenario(sc: Scenario, sinks=(), keep_samples: bool = False, batch_size:
                      physics_step=s.physics_step, integrator=s.integrator, divergence_limit=s.divergence_limit)
     run = Run(sim, s.duration, batch_size, scenario_dict=scenario_to_dict(sc), metric_settings=sc.metrics,
               keep_samples=keep_samples)
-    result, metrics = record(run, sinks, metrics=True)
+    result, metrics = record(run, sinks, metrics=True, progress=progress)
     return ScenarioRun(sc, result, metrics)
 
 

@@ -31,7 +31,7 @@ from ftstab_mj.control.law import LAWS, Law, law_class, on_register, scenario_pa
 from ftstab_mj.control.laws.paper import COMPUTED, bound
 from ftstab_mj.disturbances import Signal
 from ftstab_mj.records import MetricSettings
-from ftstab_mj.validate import fraction, identifier, non_negative, one_line, one_of, positive, state_limit, time_step
+from ftstab_mj.validate import box_count, fraction, identifier, non_negative, one_line, one_of, positive, state_limit, time_step
 
 INTEGRATORS = ("euler", "implicitfast", "rk4")
 
@@ -243,7 +243,7 @@ def frequency_band(v):
 
 EXTERNAL_CHECKS = {
     MetricSettings: {"settle_level": positive, "final_fraction": fraction, "chatter_band": frequency_band,
-                      "settle_z1": positive, "final_window_max": positive},
+                      "settle_z1": positive, "final_window_max": positive, "certificate_boxes": box_count},
 }
 # Fields of Signal and SensorSpec that a scenario does not set: the seed is derived from Scenario.seed.
 SIGNAL_DERIVED = ("seed",)
