@@ -13,6 +13,8 @@ work limit ``max_boxes``, part of the key).
 
 from __future__ import annotations
 
+import contextlib
+import fcntl
 import hashlib
 import json
 import os
@@ -65,10 +67,32 @@ def cached_certify(r: int, k: float, gains: tuple, form: str = "full", max_boxes
     path = cache_dir() / f"certificate-{key}.json"
     cert = _read(path, key)
     if cert is None:
-        cert = _cert.certify(_hong.HongController(r, k, gains, form=form), max_boxes=int(max_boxes), progress=progress)
-        _write(path, key, cert)
+        with _computing(path):  # another process computing the same key: wait for its file
+            cert = _read(path, key)
+            if cert is None:
+                cert = _cert.certify(_hong.HongController(r, k, gains, form=form), max_boxes=int(max_boxes),
+                                     progress=progress)
+                _write(path, key, cert)
     _MEMORY[key] = cert
     return cert
+
+
+@contextlib.contextmanager
+def _computing(path: Path):
+    """An exclusive lock on ``path``'s key (a .lock file beside it, flock): processes that miss the
+    cache at once (a sweep's workers, a test suite's) compute a certificate once, the others read it.
+    No lock where the directory cannot be written (each process computes its own)."""
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd = os.open(path.with_suffix(".lock"), os.O_RDWR | os.O_CREAT, 0o644)
+    except OSError:
+        yield
+        return
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX)
+        yield
+    finally:
+        os.close(fd)  # releases the lock
 
 
 def _read(path: Path, key: str):

@@ -248,3 +248,34 @@ def test_the_certificates_are_computed_before_any_log_opens_with_a_progress_line
         assert again == [""]
     finally:
         cc.clear_memory()
+
+
+def test_processes_that_miss_the_cache_at_once_compute_the_certificate_once(tmp_path):
+    """Two processes ask for the same certificate at the same moment (each waits until both are
+    ready): one computes it, the other waits for the lock and reads its file; both get the same."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    child = """
+import sys, time
+from pathlib import Path
+from ftstab_mj import certificate_cache as cc
+calls = []
+real = cc._cert.certify
+cc._cert.certify = lambda *a, **k: calls.append(1) or real(*a, **k)
+d = Path(sys.argv[1])
+(d / ("ready" + sys.argv[2])).touch()
+while len(list(d.glob("ready*"))) < 2:
+    time.sleep(0.001)
+c = cc.cached_certify(3, -0.1, (1.0, 1.7, 5.0), max_boxes=2999)
+print(len(calls), repr(c.c_lower), c.boxes)
+"""
+    env = {**__import__("os").environ, "FTSTAB_CACHE_DIR": str(tmp_path / "cache")}
+    root = Path(__file__).resolve().parent.parent
+    procs = [subprocess.Popen([sys.executable, "-c", child, str(tmp_path), str(i)], env=env, cwd=root,
+                              stdout=subprocess.PIPE, text=True) for i in range(2)]
+    outs = [p.communicate(timeout=120)[0].split() for p in procs]
+    assert all(p.returncode == 0 for p in procs)
+    assert sorted(int(o[0]) for o in outs) == [0, 1], outs
+    assert outs[0][1:] == outs[1][1:]
