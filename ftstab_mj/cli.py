@@ -247,10 +247,15 @@ def _replayed_metrics(log):
 
 
 def _streamed_metrics(path):
-    """reader.stream_metrics (the log read as it streams) + the truncation warning on stderr."""
+    """reader.stream_metrics (the log read as it streams) + the truncation warning on stderr, and a
+    status line on a terminal while a certificate is computed."""
     from ftstab_mj.logs.reader import stream_metrics
 
-    log, metrics = stream_metrics(path)
+    say = _progress_line()
+    try:
+        log, metrics = stream_metrics(path, say)
+    finally:
+        _end_progress(say)
     if log.warning:
         print(f"warning: {log.warning}", file=sys.stderr)
     return log, metrics

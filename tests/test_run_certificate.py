@@ -279,3 +279,28 @@ print(len(calls), repr(c.c_lower), c.boxes)
     assert all(p.returncode == 0 for p in procs)
     assert sorted(int(o[0]) for o in outs) == [0, 1], outs
     assert outs[0][1:] == outs[1][1:]
+
+
+def test_replay_of_a_log_from_another_machine_shows_the_certificates_progress(tmp_path, monkeypatch):
+    """A log whose certificate is not in this machine's cache: stream_metrics computes it before
+    the metrics, with the same status lines as a run (and "" at the end), and the same metrics."""
+    from ftstab_mj import certificate_cache as cc
+    from ftstab_mj import metrics as mt
+    from ftstab_mj.cli import main
+    from ftstab_mj.logs.reader import stream_metrics
+
+    monkeypatch.setenv("FTSTAB_CACHE_DIR", str(tmp_path / "here"))
+    assert main(["run", "cart_r3_robust", "--set", "sim.duration=0.05", "--set", "metrics.certificate_boxes=2998",
+                 "--out", str(tmp_path), "--json"]) == 0
+    log = tmp_path / "cart_r3_robust.mcap"
+    _, recorded = stream_metrics(log)
+    monkeypatch.setenv("FTSTAB_CACHE_DIR", str(tmp_path / "elsewhere"))
+    monkeypatch.setattr(mt, "PROGRESS_AFTER", 0.0)
+    cc.clear_memory()
+    lines = []
+    try:
+        _, metrics = stream_metrics(log, lines.append)
+    finally:
+        cc.clear_memory()
+    assert metrics == recorded and lines[-1] == "" and len(lines) >= 2
+    assert lines[0].startswith("certificate of loop cart (r = 3, at most 2998 boxes per bound): c")

@@ -576,18 +576,22 @@ def read_log(path) -> LogData:
     return replace(log, loops=loops, counts=None, t_last=None)
 
 
-def stream_metrics(path):
+def stream_metrics(path, progress=None):
     """(log, metrics) of the log at ``path`` read as it streams, in memory that does not grow with it:
     its chunks feed ftstab_mj.metrics.MetricsStream as a run's batches do (the same bits as
     compute_metrics of its arrays), with the recorded status (interrupted when none). The log
-    (LogData) keeps no samples. Raises LogError, DamagedLog."""
-    from ftstab_mj.metrics import MetricsStream
+    (LogData) keeps no samples. progress(text): a status line while a loop's certificate is
+    computed (metrics.run_certificates: a log from another machine misses the cache). Raises
+    LogError, DamagedLog."""
+    from ftstab_mj.metrics import MetricsStream, run_certificates
     from ftstab_mj.records import INTERRUPTED
 
     reading, stream = LogStream(path), None
     try:
         for loops in reading.batches():
-            stream = stream or MetricsStream(reading.info)
+            if stream is None:
+                run_certificates(reading.info, progress)
+                stream = MetricsStream(reading.info)
             stream.update(loops)
         log = reading.log
         status = log.recorded["status"] if log.recorded else INTERRUPTED
