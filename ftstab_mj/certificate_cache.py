@@ -22,6 +22,7 @@ import tempfile
 from pathlib import Path
 
 from ftstab_mj.control import certificate as _cert
+from ftstab_mj.control import design as _design  # its Nelder-Mead polishes the witness, which decides where the B&B stops
 from ftstab_mj.control import hong as _hong
 from ftstab_mj.control import hong_terms as _terms
 from ftstab_mj.control import interval as _interval
@@ -35,7 +36,7 @@ def code_version() -> str:
     global _CODE
     if _CODE is None:
         h = hashlib.sha256()
-        for mod in (_cert, _hong, _terms, _interval):
+        for mod in (_cert, _design, _hong, _terms, _interval):
             h.update(Path(mod.__file__).read_bytes())
         _CODE = h.hexdigest()[:16]
     return _CODE

@@ -23,6 +23,7 @@ import math
 from dataclasses import dataclass, field, fields
 
 from ftstab_mj import keypath
+from ftstab_mj.control.certificate import DEFAULT_RTOL
 from ftstab_mj.errors import ScenarioError
 from ftstab_mj.tomlfile import dumps, read_toml
 from ftstab_mj.validate import Reader, describe, non_negative
@@ -164,7 +165,7 @@ CERTIFICATE_RTOL = 1e-6  # other seeded estimates (u_needed) and Theorem 3's Phi
 # c_upper / (1 - GAP_RTOL). c' likewise (its gap: c'_upper <= (1 + GAP_RTOL) c'_lower). What derives
 # from them (T(z0) ~ 1 / c_lower; Theorem 3's Delta, increasing in c', and phi_hat_limsup) gets the range
 # those brackets allow, widened by ROUNDING_RTOL for the float formulas around them.
-GAP_RTOL = 2e-3
+GAP_RTOL = DEFAULT_RTOL  # the B&B's stopping gap: the pins follow it if it changes
 ROUNDING_RTOL = 1e-9
 
 

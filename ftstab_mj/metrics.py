@@ -86,6 +86,25 @@ def certificate_note(cert, box_limit: int) -> str:
     return "" if cert.status == CERTIFIED else cert.note
 
 
+def certificate_moved(recorded: dict | None, now: dict | None) -> bool:
+    """Whether two logged certificate summaries (certificate_summary) of one controller differ only as
+    two sound computations of it may: another version of the branch and bound stops elsewhere inside
+    its gap. Both give c_lower <= c <= c_upper (and c' inside its bracket), so where both are sound
+    their brackets overlap and their statuses agree; brackets that do not overlap mean one of them is
+    wrong. False when either is missing or they are equal."""
+    if not recorded or not now or recorded == now or recorded.get("status") != now.get("status"):
+        return False
+
+    def overlap(lo, hi):
+        a, b = recorded.get(lo), recorded.get(hi)
+        c, d = now.get(lo), now.get(hi)
+        if None in (a, b, c, d):  # an end not computed (c' of an uncertified law): nothing to contradict
+            return (a is None) == (c is None) and (b is None) == (d is None)
+        return a <= d and c <= b
+
+    return overlap("c_lower", "c_upper") and overlap("c_prime_lower", "c_prime_upper")
+
+
 def _num_or_none(x):
     return None if x is None else _num(x)
 

@@ -163,3 +163,24 @@ def test_memory_of_the_final_window_stops_growing_at_final_window_max():
     large, m_large = _stream_peak(1_000_000, settings)
     assert m_small["loops"]["cart"]["final_window_start"] == 90.0 and m_large["loops"]["cart"]["final_window_start"] == 990.0
     assert large - small < 64_000, f"peak {small / 1e6:.2f} MB at 10^5 samples, {large / 1e6:.2f} MB at 10^6"
+
+
+def test_a_short_write_of_the_chunk_index_file_falls_back_to_memory_with_every_byte(monkeypatch):
+    """os.pwrite may write fewer bytes than asked (a disk that fills): the spilled chunk index then
+    continues in memory from the last complete record, so the summary never holds a cut record."""
+    from ftstab_mj.logs import mcap_file
+
+    spill = mcap_file._Spill()
+    records = [bytes([i]) * (100 + i) for i in range(6)]
+    for rec in records[:3]:
+        spill.append(rec)
+    real = os.pwrite
+
+    def short(fd, data, offset):  # the disk takes half of the record
+        return real(fd, data[: len(data) // 2], offset)
+
+    monkeypatch.setattr(mcap_file.os, "pwrite", short)
+    for rec in records[3:]:
+        spill.append(rec)
+    assert spill._file is None  # now in memory
+    assert b"".join(spill.blocks()) == b"".join(records)

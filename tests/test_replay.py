@@ -65,6 +65,35 @@ def test_replay_reports_recorded_metrics_that_do_not_match_the_samples(run, tmp_
     assert "loops.cart.chattering: recorded" in res.stderr
 
 
+def test_replay_accepts_a_certificate_another_branch_and_bound_computed_when_the_brackets_overlap(run, tmp_path):
+    """A log whose certificate an older version computed (stopped elsewhere inside its gap) replays as
+    consistent: the certificate depends on the controller and the B&B's code, not on the samples. Its
+    bracket must still hold c: one that does not overlap the recomputed bracket is a difference."""
+    info, loops, pos, quat, metrics = run
+    cert = metrics["loops"]["cart"]["certificate"]
+    assert cert["status"] == "certified"
+    older = json.loads(json.dumps(metrics))
+    oc = older["loops"]["cart"]["certificate"]
+    oc["c_lower"] *= 1 - 1e-3  # another stop inside the 2e-3 gap: still below c
+    oc["c_prime_upper"] *= 1 + 1e-3
+    older["loops"]["cart"]["time_bound"] *= 1 + 1e-3  # T(z0) ~ 1 / c_lower
+    path = tmp_path / "older.mcap"
+    write_run(McapSink(path), info, loops, pos, quat, COMPLETED, older)
+    res = run_cli("replay", path)
+    assert res.returncode == 0, res.stderr
+    assert "another version of the branch and bound" in res.stdout
+    assert "loops.cart.certificate.c_lower" in res.stdout and "loops.cart.time_bound" in res.stdout
+
+    wrong = json.loads(json.dumps(metrics))
+    wc = wrong["loops"]["cart"]["certificate"]
+    wc["c_lower"], wc["c_upper"] = 1.01 * cert["c_upper"], 1.02 * cert["c_upper"]  # a bracket without c
+    path = tmp_path / "wrong.mcap"
+    write_run(McapSink(path), info, loops, pos, quat, COMPLETED, wrong)
+    res = run_cli("replay", path)
+    assert res.returncode == 1
+    assert "loops.cart.certificate.c_lower: recorded" in res.stderr
+
+
 def test_truncated_anywhere_recovers_every_flushed_batch(run, log_with_flush_sizes, tmp_path):
     info, loops, _, _, _ = run
     path, sizes = log_with_flush_sizes

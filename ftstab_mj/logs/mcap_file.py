@@ -55,10 +55,11 @@ class _Spill:
     def append(self, data: bytes) -> None:
         if self._file is not None:
             try:
-                os.pwrite(self._file.fileno(), data, self.size)
+                if os.pwrite(self._file.fileno(), data, self.size) != len(data):  # a short write: the disk is full
+                    raise OSError("short write")
                 self.size += len(data)
                 return
-            except OSError:  # what the file holds goes back to memory, and the rest stays there
+            except OSError:  # what the file holds (up to self.size) goes back to memory, and the rest stays there
                 self._mem = bytearray(self._read())
                 self._close()
         self._mem += data

@@ -64,7 +64,8 @@ PLOTTED = {"t", "V1", *(f for fields in PLOTS.values() for f in fields)}
 # manifest: ~780 B a chunk measured with rerun-sdk 0.41, one chunk per entity and batch: 47 MB for a
 # 10^7-sample run in batches of 1000). A recording expected to hold more chunks than this is written
 # without the footer (FileSink(write_footer=False)), so that a long run's memory stays flat: the file
-# is a valid .rrd all the same (the viewer and `rerun rrd` read it), and `rerun rrd optimize` adds a
+# is a valid .rrd all the same (the viewer and `rerun rrd print` read it; `rerun rrd verify` refuses it
+# for the missing footer), and `rerun rrd optimize` adds a
 # footer later. At this bound the index costs ~9 MB.
 FOOTER_MAX_CHUNKS = 12_000
 
