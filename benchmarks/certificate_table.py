@@ -9,7 +9,7 @@ stopping point depends on the machine's speed). The soundness figure: for every 
 c_lower, the largest dV1/dt / V1^alpha that a gradient ascent with the controller's own Lie
 derivative finds from 512 starts, as (found + c_lower) / |c_lower| (the claim is that it is <= 0).
 
-    python benchmarks/certificate_table.py [--budget S] [--rows N] [--no-soundness] [--rounding]
+    python benchmarks/certificate_table.py [--budget S] [--rows N] [--r R] [--no-soundness] [--rounding]
     python benchmarks/certificate_table.py --against DIR [--repeat 3] [--select 10,14,...] [--budget S]
 
 --against DIR: before/after on the same rows. DIR is another source tree of the project (e.g.
@@ -64,6 +64,8 @@ ROWS = [  # (r, k, gains, origin)
     (6, 0.0, (0.62, 1.15, 1.54, 3.88, 39.13, 1e5), "k = 0, 6 decades"),
     (6, -0.002, (0.62, 1.15, 1.54, 3.88, 39.13, 1e5), "6 decades"),
     (6, -0.05, (0.62, 1.15, 1.54, 3.88, 39.13, 1e5), "6 decades"),
+    (6, -0.005, (0.64341, 1.1855, 1.4617, 3.5771, 41.866, 1e5), "designed (first search)"),
+    (6, -0.01, (0.67895, 1.0737, 1.4911, 3.0208, 37.59, 1e5), "designed (first search)"),
     (6, -0.02, (0.5534, 0.8051, 1.7204, 1.4749, 4.6221, 100.0), "designed by uniform states (refuted)"),
     (6, -0.02, _poles_at_minus_one(6), "poles at -1"),
     (5, -0.01, (0.65, 1.2, 1.62, 12.63, 1000.0), "4 decades"),
@@ -128,6 +130,7 @@ def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--budget", type=float, default=60.0, help="CPU seconds per row (default 60)")
     ap.add_argument("--rows", type=int, default=len(ROWS))
+    ap.add_argument("--r", type=int, default=None, help="only the rows of this chain length")
     ap.add_argument("--no-soundness", action="store_true", help="skip the adversarial search")
     ap.add_argument("--rounding", action="store_true", help="only time one outward rounding against np.nextafter")
     ap.add_argument("--against", metavar="DIR", help="before/after: DIR is the reference source tree")
@@ -143,6 +146,8 @@ def main():
     print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     claims = []
     for r, k, gains, origin in ROWS[:args.rows]:
+        if args.r is not None and r != args.r:
+            continue
         hong = HongController(r, k, gains)
         t = time.process_time()
         cert = certify(hong, budget=args.budget)

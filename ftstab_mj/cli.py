@@ -144,7 +144,8 @@ def cmd_design(args) -> int:
         say(f"designing gains for r = {args.r}, k = {args.k:g} (objective {args.objective}) ...")
     try:
         found = design(args.r, args.k, args.objective, z0=z0, u_max=args.u_max, region=region,
-                       gain_min=args.gain_min, gain_max=args.gain_max, budget=args.budget, progress=say)
+                       gain_min=args.gain_min, gain_max=args.gain_max, budget=args.budget,
+                       max_boxes=args.max_boxes, progress=say)
     finally:
         _end_progress(say)
     gains, cert = found.gains, found.certificate
@@ -170,9 +171,13 @@ def cmd_design(args) -> int:
     if found.u0_max is not None:
         print(f"  max |u0| on the region = {found.u0_max:.6g} <= {args.u_max:g}   (exact: attained at the vertex "
               f"z = ({', '.join(f'{x:g}' for x in region)}), u0 being monotone in every z_i)")
+    if not found.certified:  # no snippet: a scenario would claim a bound these gains do not have
+        print(f"  no candidate certified ({cert.status}): the gains above are the best estimate, not a result "
+              "(raise --max-boxes / --budget, or try k nearer 0 or a larger --gain-max)")
+        return 1
     print("scenario snippet ([loops.<name>.controller]):")
     print(f"  k = {args.k!r}\n  gains = [{', '.join(repr(g) for g in gains)}]")
-    return 0 if found.certified else 1
+    return 0
 
 
 def _design_states(args):
@@ -790,6 +795,8 @@ def build_parser() -> argparse.ArgumentParser:
                          "a larger last gain)")
     dz.add_argument("--budget", type=_number_in(0.01, 86400.0, what=" seconds"), default=None, metavar="SECONDS",
                     help="CPU seconds per candidate's certificate (default: until its gap is < 0.2 %%)")
+    dz.add_argument("--max-boxes", type=_number_in(1, 10 ** 10, int), default=None, metavar="N",
+                    help="branch-and-bound boxes per candidate's certificate (default 5e6; deterministic)")
     dz.add_argument("--json", action="store_true", help="print JSON: gains and certificate")
     dz.set_defaults(func=cmd_design)
 

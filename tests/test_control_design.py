@@ -141,11 +141,21 @@ def test_cli_design_prints_gains_and_snippet():
     assert "status: certified" in res.stdout and "gains = [" in res.stdout
 
 
+def test_cli_design_uncertified_prints_no_snippet():
+    """A box cap too small to decide: the output says which status it got and that the gains are not
+    a result, prints no scenario snippet (a scenario would claim a bound they lack), exits 1."""
+    res = run_cli("design", "--r", 2, "--k", -0.2, "--max-boxes", 1)
+    assert res.returncode == 1, res.stderr
+    assert "no candidate certified" in res.stdout and "gains = [" not in res.stdout
+    assert "status: certified" not in res.stdout
+
+
 @pytest.mark.parametrize("args, needle", [
     (("--r", 2, "--k", 0.5), "k"),
     (("--r", 9, "--k", -0.1), "--r"),
     (("--r", 2, "--k", -0.2, "--gain-max", "1e9"), "--gain-max"),
     (("--r", 2, "--k", -0.2, "--gain-min", "10", "--gain-max", "5"), "--gain-max"),
+    (("--r", 2, "--k", -0.2, "--max-boxes", "0"), "--max-boxes"),
     (("--r", 2, "--k", -0.2, "--objective", "min-time"), "--z0"),
     (("--r", 2, "--k", -0.2, "--objective", "fastest"), "--objective"),
     (("--r", 2, "--k", 0.0, "--objective", "min-time", "--z0", "1,0"), "--k"),
