@@ -209,6 +209,16 @@ class _Ratio:
         of s and of phi taken as an extra, independent variable over its range on the box: the
         mean-value form of F (a valid bound on R, since phi(s) stays in that range) still converges
         where dphi/ds is unbounded.
+
+        Open proof obligation (stated in the README): on those boxes the value enclosures of z_j - v_{j-1}
+        (_diff) and the gradient rule of W use identities (y - S = s, S = sig(v, beta)) that hold on the
+        set phi = phi(s) only, while the mean-value form needs F's gradient on the whole product of the
+        box and the phi ranges. So it is not proven that the gradient enclosure is one of a single F
+        there. No violation has been found (tests/test_control_certificate.py's box test, dense
+        sampling with hill climbing inside such boxes for r = 3..5, the ascent on every certified
+        row), but moving the centre off the midpoint on those boxes does break it: they keep the
+        midpoint. A version that uses only identities valid off that set is sound by construction and
+        25x to 1600x slower (r = 4 designed: 4.2e6 boxes against 1.3e5; r = 3: 4.0e6 against 2.5e3).
         """
         d, r = self.r - 1, self.r
         m = SLOTS * max(0, r - 1)  # extra variables: the factor slots of Terms.evaluate
