@@ -47,6 +47,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ftstab_mj.control.certificate import face_points
+
 OBJECTIVES = ("max-c", "min-time")
 REFUTE_ROUNDS = 8  # searches per start, each after adding the state where the last result failed
 DESIGN_MAX_BOXES = 5_000_000  # branch-and-bound cap per candidate: deterministic, ~1 min of CPU at r = 5
@@ -110,20 +112,6 @@ def linear_c(gains) -> float:
         B = np.linalg.solve(T.T, (T @ A).T).T  # T A T^-1
         c = 2.0 * float(np.linalg.eigvalsh(-(B + B.T) / 2.0)[0]) if np.isfinite(B).all() else -np.inf
     return c if np.isfinite(c) else -np.inf
-
-
-def face_points(r: int, per_face: int, rng) -> np.ndarray:
-    """States on the r faces z_j = 1 of the cube, per_face each (per_face r, r): half uniform in
-    [-1, 1]^(r-1), half with log-uniform moduli 1e-6..1 (the failures of k < 0 lie in thin layers
-    where a recursion variable nearly vanishes, which uniform points miss: the distribution of the
-    certificate's witness search)."""
-    pts = []
-    for face in range(r):
-        x = rng.uniform(-1.0, 1.0, size=(per_face, r - 1))
-        half = per_face // 2
-        x[half:] = np.sign(x[half:]) * 10.0 ** rng.uniform(-6.0, 0.0, size=x[half:].shape)
-        pts.append(np.insert(x, face, 1.0, axis=1))
-    return np.concatenate(pts)
 
 
 def _estimate_c(r, k, gains, pts, rng):
