@@ -320,6 +320,12 @@ def main():
                     sweeps.setdefault(name, []).append(own)
                     cpus.setdefault(name, []).append(cpu)
                     table = read_table(out / f"{args.case}.parquet")
+                    # a sweep whose rows failed (e.g. a C kernel not built for this tree) is fast and
+                    # identical across engines: it measures nothing
+                    failed = [s for s in table["status"] if s != "completed"]
+                    if failed:
+                        sys.exit(f"{name}: {len(failed)} of {len(table['status'])} rows not completed "
+                                 f"({failed[0]}): nothing to measure (is the C kernel built for this tree?)")
                     tables[name] = {c: v for c, v in table.items() if c not in VARYING_COLUMNS}
         finally:
             for p in procs:
