@@ -60,9 +60,11 @@ K0_SETS = [
 ]
 
 
-@pytest.mark.parametrize("gains", [g for g in K0_SETS if len(g) <= 5], ids=lambda g: f"r{len(g)}-{g[0]:g}-{g[-1]:g}")
+@pytest.mark.parametrize("gains", K0_SETS, ids=lambda g: f"r{len(g)}-{g[0]:g}-{g[-1]:g}")
 def test_k0_against_the_exact_value(gains):
-    # rtol: the B&B stops when the gap is below it (the default 0.2 % costs more at r = 5: 7 s)
+    # rtol: the B&B stops when the gap is below it; the default 0.2 % costs more from r = 5 on
+    # (r = 5: 7 s; r = 6, six decades of gains: ~8e6 boxes, 60 s), so there the test asks for 0.8 %
+    # (r = 6: 6.3e6 boxes, ~30 s CPU, the suite's longest test), still under the issue's 1 %
     cert = certify(HongController(len(gains), 0.0, gains), rtol=2e-3 if len(gains) < 5 else 8e-3)
     c = exact_k0(gains, mpf=True)
     assert cert.status == "certified"
@@ -70,19 +72,6 @@ def test_k0_against_the_exact_value(gains):
     assert cert.gap < 0.01
     assert cert.c_prime_lower <= np.sqrt(2.0) <= cert.c_prime_upper
     assert (cert.c_prime_upper - np.sqrt(2.0)) / np.sqrt(2.0) < 0.01
-
-
-def test_k0_r6_bracket_within_a_work_cap():
-    """r = 6 (six decades of gains): the exact c lies in the bracket the B&B holds after a fixed
-    amount of work (2e5 boxes, ~3 s CPU; deterministic), and the witness bound c_upper is within 1 %
-    of it. The gap itself closes (to 0.2 %) only after ~8e6 boxes, about 60 s CPU, too much for the
-    suite: benchmarks/certificate_table.py measures that row."""
-    gains = K0_SETS[-1]
-    cert = certify(HongController(6, 0.0, gains), max_boxes=200_000, samples=5000)
-    c = exact_k0(gains, mpf=True)
-    assert cert.status in ("certified", "undecided")
-    assert cert.c_lower <= c <= cert.c_upper
-    assert (cert.c_upper - c) / c < 0.01
 
 
 def _max_ratio_search(hong, alpha, rng, starts=256, steps=60):
