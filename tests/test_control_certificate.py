@@ -350,6 +350,59 @@ def test_theorem3_bounds_properties():
         theorem3_bounds(certify(HongController(3, -0.1, (1.0, 2.0, 3.0))), 1.0, 0.5, 1.0, 0.5, 2.0, 0.05)
 
 
+def _theorem3_exact(r, k, c, cp, phibar, gamma_m, kappa, delta, rate, eps):
+    """Theorem 3's Phibar, Delta, limsup phi_hat at the float inputs taken exactly (mpmath, 60 digits)."""
+    with mp.workdps(60):
+        k, c, cp, phibar, gamma_m, kappa, delta, rate, eps = (
+            mp.mpf(float(x)) for x in (k, c, cp, phibar, gamma_m, kappa, delta, rate, eps))
+        oma, omap = 1 - (2 + 2 * k) / (2 + k), (1 + (r - 1) * k) / (2 + k)  # 1 - alpha, 1 - alpha'
+        Phibar = (phibar + (kappa * gamma_m - 1) ** 2 / (4 * gamma_m * delta)) / gamma_m
+        Delta = (eps ** omap + cp * omap * gamma_m * Phibar ** 2 / (2 * rate)) ** (1 / omap)
+        limsup = 2 * Phibar + rate * Delta ** oma / (c * oma) if k < 0 else mp.inf
+        return Phibar, Delta, limsup
+
+
+def test_theorem3_bounds_are_never_below_the_exact_formula_and_within_1e_12_of_it():
+    """Issue 11 point 1, Theorem 3 with the guaranteed constants: on random inputs (r = 2..6, k over
+    its range and 0, constants over decades) each bound is >= the paper's formula evaluated exactly
+    (mpmath, 60 digits) at c = c_lower, c' = c_prime_upper, and above it by at most 1e-12 relative
+    (outward rounding: a few ulps per operation, 16 per power, times the exponent 1/(1 - alpha')
+    <= 11); the float formula falls below the exact value in some cases (so rounding matters)."""
+    from ftstab_mj.control.certificate import CERTIFIED, Certificate
+
+    rng = np.random.default_rng(11)
+    worst, float_below, n = 0.0, 0, 0
+    for case in range(300):
+        r = int(rng.integers(2, 7))
+        k = 0.0 if case % 10 == 0 else -float(rng.uniform(1e-6, 1.0 / r)) * (1.0 - 1e-9)
+        c, cp = 10.0 ** rng.uniform(-3, 1), 10.0 ** rng.uniform(-1, 1)
+        phibar = 0.0 if case % 7 == 0 else 10.0 ** rng.uniform(-2, 1)
+        gamma_m, kappa, delta = 10.0 ** rng.uniform(-2, 2, 3)
+        rate, eps = 10.0 ** rng.uniform(-2, 4), 10.0 ** rng.uniform(-6, 0)
+        alpha, alpha_p = (2.0 + 2.0 * k) / (2.0 + k), 1.0 - (1.0 + (r - 1) * k) / (2.0 + k)
+        cert = Certificate(form="full", c=c, alpha=alpha, c_prime=cp, alpha_prime=alpha_p, certified=True,
+                           samples=100, seed=0, status=CERTIFIED, c_lower=c, c_upper=c, c_prime_upper=cp,
+                           witness=(0.5,) * r, k=k)
+        b = theorem3_bounds(cert, phibar, gamma_m, kappa, delta, rate, eps)
+        exact = _theorem3_exact(r, k, c, cp, phibar, gamma_m, kappa, delta, rate, eps)
+        Phibar_f = (phibar + (kappa * gamma_m - 1.0) ** 2 / (4.0 * gamma_m * delta)) / gamma_m
+        Delta_f = (eps ** (1.0 - alpha_p) + cp * (1.0 - alpha_p) * gamma_m * Phibar_f ** 2 / (2.0 * rate)) \
+            ** (1.0 / (1.0 - alpha_p))
+        floats = [Phibar_f, Delta_f, 2.0 * Phibar_f + rate * Delta_f ** (1.0 - alpha) / (c * (1.0 - alpha))
+                  if k < 0 else np.inf]
+        for name, got, ex, fl in zip(("Phibar", "Delta", "phi_hat_limsup"), (b.Phibar, b.Delta, b.phi_hat_limsup),
+                                     exact, floats):
+            if ex == mp.inf:
+                assert got == np.inf, (case, name)
+                continue
+            assert got >= ex, (case, name, got, ex)
+            worst = max(worst, float((got - ex) / ex))
+            float_below += fl < ex
+            n += 1
+    assert n > 700 and worst < 1e-12, (n, worst)
+    assert float_below > 0, "the float formula was never below the exact value: the test shows nothing"
+
+
 def test_cache_gives_the_fresh_result(tmp_path, monkeypatch):
     """A certificate read back from the disk cache is identical to a fresh one; an unwritable cache
     directory falls back to computing (same result)."""

@@ -32,7 +32,7 @@ import numpy as np
 
 from ftstab_mj.control.hong import HongController
 from ftstab_mj.control.hong_terms import SLOTS, SimplifiedTerms, Terms, _power, exp_of
-from ftstab_mj.control.interval import Dual, Iv, _dn, _up
+from ftstab_mj.control.interval import Dual, Exp, Iv, _dn, _up
 from ftstab_mj.errors import ParameterError
 
 DEFAULT_SAMPLES = 20_000  # witness search: states sampled on the faces before the B&B
@@ -102,12 +102,17 @@ class Certificate:
         """
         if not self.certified or self.alpha >= 1.0:
             return np.full(np.shape(_hi(V1_0)), np.inf) if np.ndim(_hi(V1_0)) else float("inf")
+        V = V1_0 if isinstance(V1_0, Iv) else Iv(np.asarray(V1_0, dtype=float))
+        T = self._time_to_zero(V).hi
+        return T if np.ndim(T) else float(T)
+
+    def _time_to_zero(self, V: Iv) -> Iv:
+        """An enclosure of V^(1-a) / (c_lower (1-a)) for every V in the enclosure ``V`` (certified, k < 0):
+        the time dV1/dt <= -c V1^alpha takes from V1 = V to 0."""
         F = Fraction(float(self.k))
         one_minus_a = exp_of(-F / (2 + F))  # > 0 for -1/r < k < 0
-        V = V1_0 if isinstance(V1_0, Iv) else Iv(np.asarray(V1_0, dtype=float))
         with np.errstate(all="ignore"):
-            T = (V.pabs(one_minus_a) * (Iv(float(self.c_lower)) * one_minus_a.iv()).recip()).hi
-        return T if np.ndim(T) else float(T)
+            return V.pabs(one_minus_a) * (Iv(float(self.c_lower)) * one_minus_a.iv()).recip()
 
 
 def _hi(x):
@@ -639,7 +644,8 @@ def check_region(hong: HongController, inner: float, outer: float, samples: int 
 
 @dataclass(frozen=True)
 class Theorem3Bounds:
-    """Theorem 3's constants for the adaptive law, computed with the TRUE phibar and gamma_m."""
+    """Theorem 3's constants for the adaptive law, computed with the TRUE phibar and gamma_m: each a
+    guaranteed upper bound of the paper's formula (theorem3_bounds); inf where none is finite."""
 
     Phibar: float
     Delta: float  # limsup V1 <= Delta
@@ -648,26 +654,61 @@ class Theorem3Bounds:
 
 def theorem3_bounds(cert: Certificate, phibar: float, gamma_m: float, kappa: float, delta: float,
                     rate: float, eps: float) -> Theorem3Bounds:
-    """Phibar, Delta and the limsup bound on phi_hat (Theorem 3 of Harmouche, Laghrouche and Chitour). Needs a full-form certificate."""
+    """Theorem 3 of Harmouche, Laghrouche and Chitour (section 4, the adaptive controller), with the
+    true bounds phibar >= |phi|, gamma_m <= gamma of the plant and the law's kappa, delta, rate (the
+    paper's adaptation gain k) and eps. Needs a certified full-form certificate.
+
+    Above V1 = eps the estimate phi_hat grows at the rate; until it passes Phibar, dV1/dt <= -c V1^alpha
+    + gamma_m c' V1^alpha' (Phibar - phi_hat), and Delta bounds the overshoot of V1 this allows; the
+    limsup of phi_hat adds to 2 Phibar its growth during the time from V1 = Delta to 0. The paper's
+    constants:
+
+        Phibar = (phibar + (kappa gamma_m - 1)^2 / (4 gamma_m delta)) / gamma_m
+        Delta  = (eps^(1-alpha') + c' (1-alpha') gamma_m Phibar^2 / (2 rate))^(1/(1-alpha'))
+        limsup V1 <= Delta,  liminf V1 <= eps,
+        limsup phi_hat <= 2 Phibar + rate Delta^(1-alpha) / (c (1-alpha))
+
+    with alpha = (2 + 2k)/(2 + k), alpha' = 1 - p_r/(2 + k), p_r = 1 + (r - 1) k (k the homogeneity
+    degree); the last term is rate times the time the certificate gives from V1 = Delta to 0
+    (Certificate.time_bound), infinite at k = 0 (alpha = 1: exponential decay, no end).
+
+    Guaranteed: Delta grows with c' and the limsup falls with c, so with c = c_lower and c' =
+    c_prime_upper they bound the constants of the true c, c' from above; and each is computed in
+    outward-rounded intervals (interval.Iv; 1 - alpha, 1 - alpha' and 1/(1 - alpha') enclosed from the
+    exact rational k, the last as its integer part and the rest: _pow_rational), so the number returned is never below the formula's exact value at those
+    constants and above it by at most 3e-13 relative (tests/test_control_certificate.py, against mpmath
+    at 60 digits; the plain float formula was below it in about half of those cases).
+    All three are upper bounds (Theorem 3 has no lower one); an enclosure beyond the largest float
+    gives inf, an honest "no finite bound".
+    """
     if not cert.certified:
         raise ParameterError("certificate", "a full-form certificate with c > 0", cert.c)
     for name, val in (("phibar", phibar), ("gamma_m", gamma_m), ("kappa", kappa), ("delta", delta),
                       ("rate", rate), ("eps", eps)):
         if not (np.isfinite(val) and (val > 0 or (name == "phibar" and val == 0))):
             raise ParameterError(name, "a finite number > 0" + (" (or 0)" if name == "phibar" else ""), val)
-    # float64 arithmetic: a bound beyond the largest float is infinite (an honest "no finite bound"),
-    # where Python's float ** would raise OverflowError (e.g. a gain offset of 1.8e308); the inputs are
-    # finite, so a NaN can only come from inf / inf of such an overflow and is infinite too
-    phibar, gamma_m, kappa, delta, rate, eps = map(np.float64, (phibar, gamma_m, kappa, delta, rate, eps))
-    with np.errstate(over="ignore", invalid="ignore"):
-        Phibar = (phibar + (kappa * gamma_m - 1.0) ** 2 / (4.0 * gamma_m * delta)) / gamma_m
-        ap = cert.alpha_prime
-        Delta = (eps ** (1.0 - ap) + cert.c_prime * (1.0 - ap) * gamma_m * Phibar ** 2 / (2.0 * rate)) ** (1.0 / (1.0 - ap))
-        a = cert.alpha
+    F = Fraction(float(cert.k))
+    p_r = 1 + (len(cert.witness) - 1) * F  # the witness is a state of the chain: r values
+    one_m_ap = exp_of(p_r / (2 + F))  # 1 - alpha'
+    phibar, gamma_m, kappa, delta, rate, eps = (Iv(float(x)) for x in (phibar, gamma_m, kappa, delta, rate, eps))
+    with np.errstate(all="ignore"):
+        Phibar = (phibar + (kappa * gamma_m - 1.0).sq() / (4.0 * gamma_m * delta)) / gamma_m
+        Delta = (eps.pabs(one_m_ap) + Iv(float(cert.c_prime_upper)) * one_m_ap.iv() * gamma_m * Phibar.sq()
+                 / (2.0 * rate))
+        Delta = _pow_rational(Delta, (2 + F) / p_r)
         # At k = 0 (alpha = 1) V1 decays exponentially, never reaching 0 in finite time: the proof's
         # last phase has no end, so the bound on phi_hat is infinite.
-        limsup = 2.0 * Phibar + rate * Delta ** (1.0 - a) / (cert.c * (1.0 - a)) if a < 1.0 else float("inf")
-    def bound(x):
-        return float(x) if np.isfinite(x) else float("inf")
+        limsup = 2.0 * Phibar + rate * cert._time_to_zero(Delta) if cert.alpha < 1.0 else None
+
+    def bound(x):  # the upper end; NaN cannot occur in an Iv, inf is "no finite bound"
+        return float("inf") if x is None or not np.isfinite(x.hi) else float(x.hi)
 
     return Theorem3Bounds(Phibar=bound(Phibar), Delta=bound(Delta), phi_hat_limsup=bound(limsup))
+
+
+def _pow_rational(x: Iv, q: Fraction) -> Iv:
+    """|x|^q for a rational q >= 0, as |x|^n |x|^(q - n), n = floor(q): the integer exponent is exact and
+    the rest is enclosed to an ulp of a number < 1, where Iv.pabs of the float interval around q
+    would widen by 746 ulps of q relative (up to 1.3e-12 at Delta's q = 1/(1 - alpha') ~ 11)."""
+    n = q.numerator // q.denominator
+    return x.pabs(Exp(float(n))) * x.pabs(exp_of(q - n))
