@@ -1,17 +1,20 @@
-"""A sweep task on the ideal chain (no MuJoCo, no scenario file), for the tests of the sweep engine.
+"""Sweep tasks for the tests of the sweep engine: one on the ideal chain (no MuJoCo, no scenario file), and
+a scenario row task that refuses to validate a row itself.
 
 Parameters (key paths of the rows): ``r`` (2 or 3), ``period`` (s), ``amplitude`` (of a sine
 phi, chain units), ``k`` (Hong's degree; k > 0 is rejected by HongController: a failing row).
 Picklable, importable by worker processes (the tests run from the repository root).
 """
 
-from dataclasses import dataclass
+import os
+from dataclasses import dataclass, fields
 
 import numpy as np
 
 from ftstab_mj.control import HongController, RobustLaw
 from ftstab_mj.disturbances import Signal
 from ftstab_mj.ideal_chain import simulate_chain
+from ftstab_mj.sweep.runner import ScenarioTask
 
 GAINS = {2: (1.0, 2.0), 3: (1.0, 1.7, 5.0)}
 DEGREE = {2: -0.2, 3: -0.1}
@@ -33,3 +36,16 @@ class ChainTask:
         return {"status": "completed", "error": "",
                 "metrics": {"final_abs_z1": float(np.max(np.abs(tail))), "V1_final": float(run.V1[-1]),
                             "z_final": [float(x) for x in run.z_final]}}
+
+
+@dataclass(frozen=True)
+class NoValidationTask(ScenarioTask):
+    """A :class:`ScenarioTask` whose rows fail if it validates one itself: where it runs, it runs only the
+    scenarios prepare() validated in the parent (inherited by a fork, or carried with the chunk)."""
+
+    @classmethod
+    def of(cls, task: ScenarioTask) -> "NoValidationTask":
+        return cls(**{f.name: getattr(task, f.name) for f in fields(task)})
+
+    def scenario(self, index, params):
+        raise AssertionError(f"row {index} validated again in process {os.getpid()}")

@@ -5,6 +5,7 @@
 
 import json
 import os
+import pickle
 import subprocess
 import sys
 
@@ -15,7 +16,7 @@ from ftstab_mj.sweep import engine, expand, load_sweep, runner
 from ftstab_mj.sweep.run import run_sweep
 from ftstab_mj.sweep.runner import ScenarioTask, prepare
 from ftstab_mj.sweep.table import read_table
-from tests.sweep_chain import ChainTask
+from tests.sweep_chain import ChainTask, NoValidationTask
 from tests.test_sweep_engine import CHAIN_SWEEP, results, write_sweep
 
 
@@ -60,6 +61,37 @@ def test_a_row_whose_parameters_differ_from_the_prepared_ones_is_validated_again
     assert task(0, other) == ScenarioTask(task.base, task.source)(0, other)
 
 
+def test_a_chunk_carries_its_prepared_rows_to_a_worker_that_does_not_share_the_parents_memory(tmp_path):
+    """What a spawned or Dask worker gets: the task with the chunk's validated scenarios in it, run as
+    they are (the task copy below validates nothing, and knows no prepared store of this process)."""
+    sweep = cart_sweep(tmp_path)
+    rows = expand(sweep)
+    task, _ = prepare(sweep, rows)
+    expected = [ScenarioTask(task.base, task.source)(r.index, r.params) for r in rows]
+    shipped = pickle.loads(pickle.dumps(NoValidationTask.of(task).carrying([0, 2])))
+    away = NoValidationTask(shipped.base, shipped.source, carried=shipped.carried)  # token "": no store here
+    assert sorted(away.carried) == [0, 2]
+    assert [away(i, rows[i].params) for i in (0, 2)] == [expected[0], expected[2]]
+    with pytest.raises(AssertionError, match="row 1 validated again"):  # not carried: it would validate it
+        away(1, rows[1].params)
+
+
+def test_no_engine_validates_a_prepared_row_twice_and_every_engine_gives_the_same_results(tmp_path):
+    """Serial (this process's store), forked processes (the store inherited), a Dask worker (the chunk
+    carries its rows): a row validated again fails here, and the results are the unprepared task's."""
+    sweep = cart_sweep(tmp_path, samples=4)
+    rows = expand(sweep)
+    task, _ = prepare(sweep, rows)
+    expected = {r.index: ScenarioTask(task.base, task.source)(r.index, r.params) for r in rows}
+    for engine_name, workers in (("serial", 1), ("processes", 2), ("dask", 1)):
+        task, _ = prepare(sweep, rows)  # a fresh store: each engine's runs use theirs up
+        got = dict(engine.execute([(r.index, r.params) for r in rows], NoValidationTask.of(task), engine_name, workers))
+        assert sorted(got) == sorted(expected), engine_name
+        for i, result in got.items():
+            assert result["status"] == "completed", (engine_name, result["error"])
+            assert (result["metrics"], result["error"]) == (expected[i]["metrics"], expected[i]["error"]), engine_name
+
+
 FORK_CHECK = """
 import threading
 from ftstab_mj.callback import control_callback
@@ -99,7 +131,7 @@ def test_a_dask_cluster_started_ahead_is_taken_over_by_the_sweep_or_closed_at_th
 FORKED_ROWS = """
 import json, sys
 from ftstab_mj.sweep.engine import execute, start_method
-from tests.sweep_chain import ChainTask
+from tests.sweep_chain import ChainTask, NoValidationTask
 items = [(i, (("period", 0.01 * (i + 1)),)) for i in range(int(sys.argv[1]))]
 assert start_method() == "fork"
 out = {i: r["metrics"] for i, r in execute(items, ChainTask(), "processes", workers=2)}

@@ -28,7 +28,10 @@ so its extra threads add no speed (start workers with ``--nthreads 1 --nworkers 
 Rows travel in chunks (:func:`chunks`): one engine task runs several rows one after the other, so the
 engine's cost per task (pickling, scheduling, a round trip: ~1 ms on processes, several ms on Dask)
 is paid once per chunk, not once per row; results still come back per row. A chunk is the unit of
-loss: when a worker dies, every row of its chunk is lost (and retried by a resume).
+loss: when a worker dies, every row of its chunk is lost (and retried by a resume). A worker that
+does not share this process's memory (spawned, Dask) gets the task as ``task.carrying(indices)``
+where the task has that method: what this process prepared for the chunk's rows travels with it
+(runner.ScenarioTask: the validated scenarios, so no row is validated twice).
 
 A result of ``None`` means the run was lost by the engine (its worker process died): it is not a
 result of the run and the caller must not record it as one.
@@ -78,6 +81,12 @@ def guarded(task: Callable[[int, tuple], dict], index: int, params: tuple) -> di
 def run_chunk(task: Callable[[int, tuple], dict], chunk: list[tuple[int, tuple]]) -> list[tuple[int, dict]]:
     """[(index, guarded(task, index, params))] for every row of ``chunk``, one after the other."""
     return [(i, guarded(task, i, params)) for i, params in chunk]
+
+
+def carrying(task, chunk: list[tuple[int, tuple]]):
+    """``task.carrying([row indices of chunk])`` where the task has that method, else ``task``."""
+    carry = getattr(task, "carrying", None)
+    return task if carry is None else carry([i for i, _ in chunk])
 
 
 def chunks(items: list, workers: int) -> list[list]:
@@ -136,9 +145,11 @@ def _processes(items, task, workers) -> Iterator[tuple[int, dict | None]]:
             return
     # checked again: a run may leave a thread behind (a log sink's), and then workers are spawned.
     # With "fork", the pool forks all its workers at the first submit, before it starts its own thread
-    pool = ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context(start_method()))
-    try:
-        futures = {pool.submit(run_chunk, task, chunk): chunk for chunk in chunks(items, workers)}
+    method = start_method()
+    pool = ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context(method))
+    try:  # forked workers have this process's prepared rows in their memory; spawned ones get them sent
+        futures = {pool.submit(run_chunk, task if method == "fork" else carrying(task, chunk), chunk): chunk
+                   for chunk in chunks(items, workers)}
         for fut in as_completed(futures):
             if fut.exception() is not None:  # the worker died (BrokenProcessPool): its chunk is lost
                 yield from ((i, None) for i, _ in futures[fut])
@@ -240,7 +251,8 @@ def _dask(items, task, workers, scheduler) -> Iterator[tuple[int, dict | None]]:
     try:
         if scheduler:  # the cluster's workers now (more may join later)
             workers = max(1, len(client.scheduler_info().get("workers", {})))
-        futures = {client.submit(run_chunk, task, chunk, key=f"ftstab-{tag}-{chunk[0][0]}", pure=False): chunk
+        futures = {client.submit(run_chunk, carrying(task, chunk), chunk, key=f"ftstab-{tag}-{chunk[0][0]}",
+                                 pure=False): chunk
                    for chunk in chunks(items, workers)}
         for fut in as_completed(futures):
             if fut.status != "finished":  # "error": the task killed its workers (KilledWorker)
