@@ -118,14 +118,15 @@ def test_a_dask_cluster_started_ahead_is_taken_over_by_the_sweep_or_closed_at_th
     with engine.started_ahead("dask", 1):
         started = engine._AHEAD[(1, None)]
         ahead = run_sweep("s", rows, ChainTask(), tmp_path / "ahead", {}, engine="dask", workers=1, progress=None)
-        assert (1, None) not in engine._AHEAD  # taken over by the sweep, which closed it
-        assert started.result()[0].status == "closed"
+        assert (1, None) not in engine._AHEAD  # taken over by the sweep, which has it closed beside its table
+    client, cluster = started.result()
+    assert client.status == "closed" and cluster.status.name == "closed"  # by the end of the block
     assert results(read_table(ahead.table)) == results(read_table(serial.table))
     with engine.started_ahead("dask", 1):  # e.g. a row fails validation: the sweep never runs
         unused = engine._AHEAD[(1, None)]
     client, cluster = unused.result()
     assert client.status == "closed" and cluster.status.name == "closed"
-    assert engine._AHEAD == {}
+    assert engine._AHEAD == {} and engine._BESIDE == {}
 
 
 FORKED_ROWS = """

@@ -50,7 +50,7 @@ from ftstab_mj.errors import EngineError
 from ftstab_mj.records import FAILED
 
 if TYPE_CHECKING:
-    from concurrent.futures import Future
+    from concurrent.futures import Future, ThreadPoolExecutor
 
 ENGINES = ("serial", "processes", "dask")
 CHUNKS_PER_WORKER = 4  # enough chunks for the workers to even out rows of unequal cost
@@ -213,6 +213,7 @@ def _dask_close(client, cluster) -> None:
 
 
 _AHEAD: dict[tuple, Future] = {}  # (workers, scheduler) -> the Dask connection started_ahead() is making
+_BESIDE: dict[tuple, ThreadPoolExecutor] = {}  # (workers, scheduler) -> started_ahead()'s thread, which closes it
 
 
 @contextmanager
@@ -224,7 +225,9 @@ def started_ahead(engine: str, workers: int = 1, scheduler: str | None = None):
     Only the Dask engine starts ahead: a LocalCluster's worker processes take ~1 s of wall to start,
     a scheduler a round trip to answer. Serial needs nothing, and process workers are forked when the
     rows run so that they inherit what was validated. What was started and not taken over is closed
-    at the end of the block.
+    at the end of the block; what :func:`execute` took over it closes in the same background thread
+    once its rows are done (a LocalCluster takes ~0.05-0.1 s to stop its workers), so the caller
+    writes its table meanwhile, and the end of the block waits for it.
     """
     if engine != "dask":
         yield
@@ -232,12 +235,13 @@ def started_ahead(engine: str, workers: int = 1, scheduler: str | None = None):
     from concurrent.futures import ThreadPoolExecutor
 
     key = (workers, scheduler)
-    starter = ThreadPoolExecutor(1, thread_name_prefix="ftstab-dask-start")
+    _BESIDE[key] = starter = ThreadPoolExecutor(1, thread_name_prefix="ftstab-dask-start")
     _AHEAD[key] = started = starter.submit(_dask_connect, workers, scheduler)
     try:
         yield
     finally:
-        starter.shutdown(wait=True)
+        _BESIDE.pop(key, None)
+        starter.shutdown(wait=True)  # and the close of the cluster execute() took over
         if _AHEAD.pop(key, None) is started and started.exception() is None:  # not taken over: close it
             _dask_close(*started.result())
 
@@ -245,7 +249,8 @@ def started_ahead(engine: str, workers: int = 1, scheduler: str | None = None):
 def _dask(items, task, workers, scheduler) -> Iterator[tuple[int, dict | None]]:
     from distributed import as_completed
 
-    ahead = _AHEAD.pop((workers, scheduler), None)
+    key = (workers, scheduler)
+    ahead = _AHEAD.pop(key, None)
     client, cluster = ahead.result() if ahead is not None else _dask_connect(workers, scheduler)
     tag = uuid.uuid4().hex[:8]  # keys unique to this sweep on a shared scheduler
     try:
@@ -261,4 +266,8 @@ def _dask(items, task, workers, scheduler) -> Iterator[tuple[int, dict | None]]:
                 yield from fut.result()
             fut.release()
     finally:
-        _dask_close(client, cluster)
+        beside = _BESIDE.get(key)
+        if beside is not None:  # started_ahead's block waits for it, after the caller wrote its table
+            beside.submit(_dask_close, client, cluster)
+        else:
+            _dask_close(client, cluster)
