@@ -149,11 +149,12 @@ def vertex_u0(r, k, gains, region) -> float:
 
 def time_bound(cert, r, k, gains, z0) -> float:
     """Theorem 1's guaranteed bound max_j T(z0[j]) (s) for the certificate ``cert`` of (r, k, gains);
-    z0 (m, r). Infinite when not certified or k = 0."""
-    from ftstab_mj.control.hong import HongController
+    z0 (m, r). The number a run of these gains reports (metrics.time_bound): V1(z0) enclosed
+    (certificate.V1_enclosure) and every step rounded outward (Certificate.time_bound). Infinite
+    when not certified or k = 0."""
+    from ftstab_mj.control.certificate import V1_enclosure
 
-    V0 = HongController(r, k, gains, check_hurwitz=False).V1(np.asarray(z0, dtype=float))
-    return float(np.max(cert.time_bound(V0)))
+    return float(np.max(cert.time_bound(V1_enclosure(r, k, gains, z0))))
 
 
 @dataclass(frozen=True)
@@ -233,6 +234,8 @@ def design(r: int, k: float, objective: str = "max-c", z0=None, u_max: float | N
         return -c_est(g) if feasible(g) else np.inf
 
     def cost_min_time(x):
+        """The search's estimate of log T(z0): floats (estimated c, float V1), a heuristic that only
+        steers the search; the candidates are ranked by their guaranteed time_bound below."""
         g = gains_of(x)
         if not feasible(g):
             return np.inf
