@@ -133,8 +133,11 @@ def cmd_design(args) -> int:
     from ftstab_mj.control.design import default_gain_max, design
     from ftstab_mj.control.hong import validate_hong
 
-    if args.gain_max is None:
+    if args.gain_max is None:  # the user set at most --gain-min: that is the option to name
         args.gain_max = default_gain_max(args.r)
+        if args.gain_max <= args.gain_min:
+            raise UsageError(f"--gain-min: expected a value below {args.gain_max:g} (the default --gain-max for "
+                             f"r = {args.r}; pass a larger --gain-max to go above it), got {args.gain_min:g}")
     if args.gain_max <= args.gain_min:
         raise UsageError(f"--gain-max: expected a value above --gain-min = {args.gain_min:g}, got {args.gain_max:g}")
     validate_hong(args.r, args.k, (1.0,) * args.r, check_hurwitz=False)  # k's range, before any work

@@ -158,6 +158,10 @@ def test_cli_design_uncertified_prints_no_snippet():
     (("--r", 2, "--k", -0.2, "--max-boxes", "0"), "--max-boxes"),
     (("--r", 2, "--k", -0.2, "--objective", "min-time"), "--z0"),
     (("--r", 2, "--k", -0.2, "--objective", "fastest"), "--objective"),
+    # only --gain-min given, above the default --gain-max of r = 2 (100): the option named is the one set
+    (("--r", 2, "--k", -0.2, "--gain-min", "200"),
+     "--gain-min: expected a value below 100 (the default --gain-max for r = 2; pass a larger --gain-max"),
+    (("--r", 2, "--k", -0.2, "--gain-min", "200", "--gain-max", "150"), "--gain-max: expected a value above --gain-min = 200, got 150"),
     (("--r", 2, "--k", 0.0, "--objective", "min-time", "--z0", "1,0"), "--k"),
     (("--r", 2, "--k", -0.2, "--objective", "min-time", "--z0", "1,0,0"), "--z0"),
     (("--r", 2, "--k", -0.2, "--objective", "min-time", "--z0", "0,0"), "--z0"),
