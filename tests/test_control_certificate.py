@@ -188,6 +188,78 @@ def test_box_bounds_hold_against_search(r):
     print(f"box bounds r = {r}: largest (R found - ub)/|ub| = {worst:.3g}")
 
 
+def _mean_value_violations(r, seed, genuine=True, boxes=60, pairs=40):
+    """Steps 2-3 of certificate._Ratio.boxes, checked off the manifold: on random boxes near the
+    zeros of the recursion variables (where factors phi become variables of their own), random
+    point pairs P, Q of the product X x P (phi anywhere in its range, not phi(s)) must satisfy
+    F(Q) <= F(P) + sum_j sup(G_j (Q_j - P_j)), G the gradient enclosure the B&B uses and F the
+    same function (``_Ratio.at``), both outward-rounded: a violation is a proof that G is not an
+    enclosure of F's gradient. genuine=False evaluates without Terms.evaluate's ``extra`` masks
+    (the rule that preceded it: the identities of the manifold used on the whole product).
+    Returns (violations, pairs checked)."""
+    from ftstab_mj.control.certificate import _Ratio, _term
+    from ftstab_mj.control.interval import _up
+
+    rng = np.random.default_rng(seed)
+    base = [g for g in K0_SETS if len(g) == r][-1]
+    k = -rng.uniform(0.05, 0.4) / r
+    gains = tuple(float(g) for g in np.array(base) * 2.0 ** rng.uniform(-1, 1, r))
+    obj = _Ratio(Terms(r, k, gains), "c")
+    if not genuine:
+        evaluate = obj.t.evaluate
+        obj.t.evaluate = lambda s, factor=None, extra=None: evaluate(s, factor)
+    d, bad, checked = r - 1, 0, 0
+    for face in range(r):
+        mid = np.sign(rng.uniform(-1, 1, (boxes, d))) * 10.0 ** rng.uniform(-5, 0, (boxes, d))
+        half = np.abs(mid) * 10.0 ** rng.uniform(-0.5, 0.5, (boxes, d))  # boxes that reach 0 or nearly
+        lo, hi = np.clip(mid - half, -1, 1), np.clip(mid + half, -1, 1)
+        with np.errstate(all="ignore"):
+            F, phis, _ = obj.product(face, lo, hi)
+            pts = []
+            for _ in range(2):
+                x = lo[:, None] + rng.uniform(0, 1, (boxes, pairs, d)) * (hi - lo)[:, None]
+                p = {sl: rng.uniform(0, 1, (boxes, pairs)) * (v.hi - v.lo)[:, None] + v.lo[:, None]
+                     for sl, (_, v) in phis.items()}
+                pts.append((x, p))
+            (xp, pp), (xq, pq) = pts
+            flat = lambda a: a.reshape(boxes * pairs, *a.shape[2:])  # noqa: E731
+            rep = lambda m: np.repeat(m, pairs)  # noqa: E731
+            FP = obj.at(face, flat(xp), {sl: (rep(nr), flat(pp[sl])) for sl, (nr, _) in phis.items()})
+            FQ = obj.at(face, flat(xq), {sl: (rep(nr), flat(pq[sl])) for sl, (nr, _) in phis.items()})
+            bound = FP.hi
+            for jj, g in enumerate(F.g):
+                if g is None:
+                    continue
+                if jj < d:
+                    a, b = flat(xq[..., jj]), flat(xp[..., jj])
+                elif jj - d in phis:
+                    a, b = flat(pq[jj - d]), flat(pp[jj - d])
+                else:
+                    continue
+                bound = _up(bound + _term(Iv(np.repeat(g.lo, pairs), np.repeat(g.hi, pairs)), a, a, b))
+        near = np.zeros(boxes, dtype=bool)
+        for nr, _ in phis.values():
+            near |= nr
+        ok = rep(near) & np.isfinite(bound) & np.isfinite(FQ.lo)
+        bad += int(np.sum(FQ.lo[ok] > bound[ok]))
+        checked += int(ok.sum())
+    return bad, checked
+
+
+@pytest.mark.parametrize("r", [3, 4, 5])
+def test_mean_value_form_encloses_the_gradient_off_the_manifold(r):
+    """The gradient enclosure of the B&B's mean-value form is one of F on the whole product of the
+    box and the phi ranges (certificate._Ratio.boxes, steps 2-3): no pair of random points of it
+    violates the mean value inequality; and the check has teeth: the rule that preceded it (with
+    the manifold's identities used off the manifold) violates it on the same boxes."""
+    bad, checked = _mean_value_violations(r, 11 + r)
+    assert checked > 2000
+    assert bad == 0
+    old_bad, _ = _mean_value_violations(r, 11 + r, genuine=False)
+    print(f"r = {r}: {checked} pairs, {bad} violations; the old rule: {old_bad}")
+    assert old_bad > 0
+
+
 @pytest.mark.parametrize("r, k, gains, c_ref, alpha_ref", REFERENCE)
 def test_reference_table(r, k, gains, c_ref, alpha_ref):
     cert = certify(HongController(r, k, gains))

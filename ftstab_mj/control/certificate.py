@@ -202,35 +202,17 @@ class _Ratio:
         with np.errstate(all="ignore"):
             return self._ratio(*self.t.evaluate([Iv(z[:, i]) for i in range(self.r)])[:3])
 
-    def boxes(self, face: int, lo, hi):
-        """Bounds over boxes of face ``face``: lo, hi (n, r - 1) box coordinates (the s_i, i != face).
+    def product(self, face: int, lo, hi):
+        """R on boxes of face ``face`` (lo, hi (n, r - 1): the s_i, i != face) as the function F of
+        the box and the phi ranges (see ``boxes``), with forward differentiation.
 
-        Returns (upper bound of R on each box (n,), coordinate to split (n,), guaranteed lower bound
-        of R at each centre (n,), centres (n, r)).
-
-        The upper bound is the smaller of the interval enclosure and the mean-value form
-        R(c) + sum_j max|dR/dx_j| |x_j - c_j|. Where a box comes within its width of the zero of one
-        of the small-exponent factors phi = |x|^e (Terms.evaluate), R is a smooth function F(s, phi)
-        of s and of phi taken as an extra, independent variable over its range on the box: the
-        mean-value form of F (a valid bound on R, since phi(s) stays in that range) still converges
-        where dphi/ds is unbounded.
-
-        Open proof obligation (stated in the README): on those boxes the value enclosures of z_j - v_{j-1}
-        (_diff) and the gradient rule of W use identities (y - S = s, S = sig(v, beta)) that hold on the
-        set phi = phi(s) only, while the mean-value form needs F's gradient on the whole product of the
-        box and the phi ranges. So it is not proven that the gradient enclosure is one of a single F
-        there. No violation has been found (tests/test_control_certificate.py's box test, dense
-        sampling with hill climbing inside such boxes for r = 3..5, the ascent on every certified
-        row), but moving the centre off the midpoint on those boxes does break it: they keep the
-        midpoint. A version that uses only identities valid off that set is sound by construction and
-        25x to 1600x slower (r = 4 designed: 4.2e6 boxes against 1.3e5; r = 3: 4.0e6 against 2.5e3).
-        """
-        d, r = self.r - 1, self.r
+        Returns (F: Dual, value and gradient enclosures over the product; phis: {slot: (near (n,) bool,
+        range Iv (n,))}, the factors that are variables of their own on the boxes ``near``; split:
+        {slot: (n, r - 1)}, how much of each such range a halving of each box coordinate removes,
+        for the split rule)."""
+        d, r, n = self.r - 1, self.r, len(lo)
         m = SLOTS * max(0, r - 1)  # extra variables: the factor slots of Terms.evaluate
-        n = len(lo)
-        mid = 0.5 * (lo + hi)
-        zc = np.insert(mid, face, 1.0, axis=1)
-        extra = {}
+        phis, split, through = {}, {}, {}
 
         def box_factor(slot, x, e, op):
             if op == "value":
@@ -246,65 +228,133 @@ class _Ratio:
             keep = ~near
             g = [None if gg is None else Iv(np.where(keep, gg.lo, 0.0), np.where(keep, gg.hi, 0.0)) for gg in chain.g]
             g[d + slot] = Iv(np.where(near, 1.0, 0.0))
-            extra[slot] = (near, val)
+            phis[slot] = (near, val)
+            # which box coordinates make phi's argument wide (directly and through the phis it
+            # depends on): a split of one of them narrows phi's range, by 2^-e only near its zero
+            wid = np.zeros((n, d))
+            for jj in range(d):
+                if x.g[jj] is not None:
+                    wid[:, jj] = x.g[jj].mag() * (hi[:, jj] - lo[:, jj])
+            for sl, (nr, vl) in phis.items():
+                gg = x.g[d + sl]
+                if gg is not None and sl != slot:
+                    wid += through[sl] * np.where(nr, gg.mag() * (vl.hi - vl.lo), 0.0)[:, None]
+            bad = ~np.isfinite(wid).all(axis=1)
+            wid[bad] = np.where(np.isfinite(wid[bad]), 0.0, (hi - lo)[bad])
+            tot = wid.sum(axis=1, keepdims=True)
+            through[slot] = np.where(tot > 0, wid / np.where(tot > 0, tot, 1.0), 0.0)
+            split[slot] = through[slot] * (1.0 if op == "value" else 2.0 * (1.0 - 2.0 ** -e.lo))
             return Dual(val, g)
 
-        centres = {}  # slot -> (near, the value phi takes at the centre of the form)
+        zs, j = [], 0
+        for i in range(r):
+            if i == face:
+                zs.append(Iv(1.0))
+            else:
+                zs.append(Dual(Iv(lo[:, j], hi[:, j]), [Iv(1.0) if jj == j else None for jj in range(d + m)]))
+                j += 1
+        F = self._ratio(*self.t.evaluate(zs, box_factor, lambda sl: phis[sl][0] if sl in phis else None)[:3])
+        return F, phis, split
 
-        def centre_factor(slot, x, e, op):
-            val = e[0] if op == "value" else x.sig(e) if op == "sig" else x.pabs(e)
-            if slot not in centres:
+    def at(self, face: int, x, phis):
+        """F at points of the product: x (n, r - 1) box coordinates, phis {slot: (near (n,), value (n,))}
+        the value each variable factor takes where ``near`` (the other factors are computed). An Iv (n,)."""
+        def point_factor(slot, xx, e, op):
+            val = e[0] if op == "value" else xx.sig(e) if op == "sig" else xx.pabs(e)
+            if slot not in phis:
                 return val
-            near, c = centres[slot]
+            near, c = phis[slot]
             return Iv(np.where(near, c, val.lo), np.where(near, c, val.hi))
 
+        z = np.insert(x, face, 1.0, axis=1)
+        zs = [Iv(z[:, i]) for i in range(self.r)]
+        return self._ratio(*self.t.evaluate(zs, point_factor, lambda sl: phis[sl][0] if sl in phis else None)[:3])
+
+    def boxes(self, face: int, lo, hi):
+        """Bounds over boxes of face ``face``: lo, hi (n, r - 1) box coordinates (the s_i, i != face).
+
+        Returns (upper bound of R on each box (n,), coordinate to split (n,), guaranteed lower bound
+        of R at each centre (n,), centres (n, r)).
+
+        The upper bound is the smallest of two interval enclosures of R and a mean-value form.
+        Every step below is proven; the soundness of each is stated with what it rests on.
+
+        1. The enclosure E1 = Terms.evaluate over the box in intervals. Each quantity is enclosed by
+           an interval extension of a formula that holds at every state of the box (the identities
+           y_i - S_{i-1} = s_i, z_i = sig(y_i, 1/beta_{i-1}), sig(v_{i-1}, beta_{i-1}) = S_{i-1} of
+           _diff and _W hold at every state: they are the definitions of the recursion). So R(s) is
+           in E1 for every s of the box.
+        2. Near the zero of a factor phi = |x|^e or sig(x, e), e < 1 (a slot of Terms.evaluate; the
+           box "near" when the argument's enclosure comes within its width of 0), dphi/ds is
+           unbounded and no mean-value form in s converges. There phi becomes a variable p of its
+           own over P = its interval range on the box, and F(s, p) is the function that the
+           evaluation computes with p in place of phi (``product``: Terms.evaluate's ``extra`` masks).
+           F is one function on the product X x P of the box X and the ranges: each of its steps is
+           a formula in (s, p) with no identity that needs p = phi(s) — where z_j = p or v_{j-1}
+           contains p, z_j - v_{j-1} in dV1/dt is a variable of its own over its range on the box
+           (that range is enclosed on the manifold, where it is the range of a function of s), and
+           W(z_j, v_{j-1}) is the integral itself with its own partial derivatives
+           (Terms._W: ``offm``); elsewhere z_j, v_{j-1} are functions of s and the identities hold.
+           So the value enclosures of the Dual arithmetic hold on all of X x P, and each gradient
+           rule is the derivative (a Clarke gradient at |x|, Lipschitz) of that step; F is Lipschitz
+           on the convex X x P and its gradient is enclosed there by G (``F.g``).
+        3. F(c) + sum_j sup(G_j (x_j - c_j)) >= F(x) for all x, c in X x P (mean value theorem on the
+           segment from c to x, inside X x P); c is Baumann's centre of each variable, F(c) enclosed
+           by ``at``. Since (s, phi(s)) is in X x P and F(s, phi(s)) = R(s), this bounds R on X.
+        4. E2 = F's value enclosure over X x P (``F.v``), a bound for the same reason.
+        The split rule and the centres change only the speed.
+        tests/test_control_certificate.py checks steps 2-3 against F at random points of X x P off
+        the manifold (the rule that preceded this one, W's gradient s dz - (z - a) dS and the tight
+        z - a taken off the manifold, fails it).
+        """
+        d, r = self.r - 1, self.r
+        n = len(lo)
+        mid = 0.5 * (lo + hi)
+        zc = np.insert(mid, face, 1.0, axis=1)
         with np.errstate(all="ignore"):
-            zs, j = [], 0
-            for i in range(r):
-                if i == face:
-                    zs.append(Iv(1.0))
-                else:
-                    zs.append(Dual(Iv(lo[:, j], hi[:, j]), [Iv(1.0) if jj == j else None for jj in range(d + m)]))
-                    j += 1
-            R = self._ratio(*self.t.evaluate(zs, box_factor)[:3])
+            F, phis, share = self.product(face, lo, hi)
             Rc = self.points(zc)  # R at the centres: a witness candidate
-            # the mean-value form about Baumann's centre: per variable x in [lo, hi] with dR/dx in
+            # the mean-value form about Baumann's centre: per variable x in [lo, hi] with dF/dx in
             # [a, b], the centre c where b (hi - c) = -a (c - lo) minimises the bound's term
             # max over x, g of g (x - c) (c = hi where a >= 0, lo where b <= 0: monotone in x)
-            # Only where no factor is an extra variable: there F = R and the centre is a true state.
-            # Near a singular factor F(s, phi) is evaluated at the midpoint, where phi is within its
-            # range's half-width of phi(s); moving it to an end of that range breaks the identities
-            # (S = sig(v, beta), y - S = s) the enclosures of Terms.evaluate rely on.
-            free = np.ones(n, dtype=bool)
-            for near, _ in extra.values():
-                free &= ~near
             cb = mid.copy()
             for jj in range(d):
-                if R.g[jj] is not None:
-                    cb[:, jj] = np.where(free, _baumann(R.g[jj], lo[:, jj], hi[:, jj], mid[:, jj]), mid[:, jj])
-            zb = np.insert(cb, face, 1.0, axis=1)
-            for slot, (near, val) in extra.items():
-                centres[slot] = (near, 0.5 * (val.lo + val.hi))
-            Fb = self._ratio(*self.t.evaluate([Iv(zb[:, i]) for i in range(r)], centre_factor)[:3])
-            mv = Fb.hi.copy()
+                if F.g[jj] is not None:
+                    cb[:, jj] = _baumann(F.g[jj], lo[:, jj], hi[:, jj], mid[:, jj])
+            centres = {}
+            for slot, (near, val) in phis.items():
+                g, c = F.g[d + slot], 0.5 * (val.lo + val.hi)
+                centres[slot] = (near, c if g is None else _baumann(g, val.lo, val.hi, c))
+            mv = self.at(face, cb, centres).hi.copy()
             score = np.zeros((n, d))
-            for jj, g in enumerate(R.g):
+            for jj, g in enumerate(F.g):
                 if g is None:
                     continue
                 if jj < d:
                     term = _term(g, lo[:, jj], hi[:, jj], cb[:, jj])
-                    score[:, jj] = g.mag() * (hi[:, jj] - lo[:, jj])  # the midpoint form's term (x2)
-                elif jj - d in extra:
-                    val = extra[jj - d][1]
+                    score[:, jj] += g.mag() * (hi[:, jj] - lo[:, jj])  # the midpoint form's term (x2)
+                elif jj - d in phis:
+                    val = phis[jj - d][1]
                     term = _term(g, val.lo, val.hi, centres[jj - d][1])
+                    w = g.mag() * (val.hi - val.lo)
+                    score += share[jj - d] * np.where(np.isfinite(w), w, 0.0)[:, None]
                 else:
                     continue
                 mv = _up(mv + term)
-        ub = np.fmin(R.v.hi, mv)
+            vhi = F.v.hi.copy()
+            near = np.zeros(n, dtype=bool)
+            for nr, _ in phis.values():
+                near |= nr
+            if near.any():  # E1 there (elsewhere F = R, E1 = E2)
+                sel = np.nonzero(near)[0]
+                box = np.insert(np.stack([lo[sel], hi[sel]], axis=-1), face, 1.0, axis=1)
+                E1 = self._ratio(*self.t.evaluate([Iv(box[:, i, 0], box[:, i, 1]) for i in range(r)])[:3])
+                vhi[sel] = np.fmin(vhi[sel], E1.hi)
+        ub = np.fmin(vhi, mv)
         ub = np.where(np.isnan(ub), np.inf, ub)
         rad = hi - lo
-        # split where the mean-value form says the enclosure is widest; where it is unbounded
-        # (a singular derivative in the box), split the widest side
+        # split where the mean-value form says the enclosure is widest (a variable factor's term
+        # charged to the coordinates its range comes from); where it is unbounded, the widest side
         plain = ~np.isfinite(score).all(axis=1) | ~(score > 0).any(axis=1)
         split = np.where(plain, np.argmax(rad, axis=1), np.argmax(np.where(np.isfinite(score), score, 0.0), axis=1))
         lb = np.where(np.isnan(Rc.lo), -np.inf, Rc.lo)

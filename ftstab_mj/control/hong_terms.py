@@ -32,7 +32,7 @@ from fractions import Fraction
 
 import numpy as np
 
-from ftstab_mj.control.interval import Dual, Exp, Iv, minus_one
+from ftstab_mj.control.interval import Dual, Exp, Iv, _gadd, minus_one
 
 
 def exp_of(x: Fraction) -> Exp:
@@ -110,7 +110,7 @@ class Terms:
                 S = -self.lb[i].mid_float() * _sig(si, self.q[i])
         return np.stack(s, axis=-1)
 
-    def evaluate(self, s, factor=None):
+    def evaluate(self, s, factor=None, extra=None):
         """(V1, dV1/dt, dV1/dz_r, u0) at recursion variables s, a list of r numbers (float arrays, Iv or Dual).
 
         factor(slot, x, e, op) -> |x|^e (op "pabs") or sig(x, e) (op "sig"), if given, computes the
@@ -118,6 +118,14 @@ class Terms:
         SLOTS * (i - 2) + j for i = 2..r: j = 0 |y_i|^(1 - 1/beta_{i-1}), 1 |s_i|^(q_i - 1),
         2 sig(s_i, e_i) (in v_i), 3 z_i = sig(y_i, 1/beta_{i-1}); and 4 z_i - v_{i-1} (op "value",
         see _diff). The B&B treats them as variables of their own near their singularity (certificate.py).
+
+        extra(slot) -> the boolean mask of the boxes where ``factor`` made that slot's quantity a
+        variable of its own (or None). There the evaluation is of a function F(s, phi) on the product
+        of the box and the phi ranges, off whose manifold phi = phi(s) the identities S = sig(v, beta),
+        y - S = s fail: _diff and _W then use only enclosures and derivatives that hold for any z and
+        v (the mean-value form of F needs its gradient on the whole product). Without ``extra`` the
+        identities are used everywhere: sound for values at states (intervals, floats), not for the
+        gradient of such an F.
         """
         f = factor or _power
         r, fl = self.r, not any(isinstance(x, (Iv, Dual)) for x in s)
@@ -140,8 +148,15 @@ class Terms:
         V = _pabs(s[0], self.one_p_inv_beta[0]) * C(self.inv_beta_p1[0])
         dV = s[0] * zdot[0]
         for j in range(2, r + 1):
-            diff = self._diff(z[j - 1], v[j - 1], y[j - 1], S[j - 1], s[j - 1], j - 1, fl, f, SLOTS * (j - 2) + 4)
-            V = V + self._W(z[j - 1], v[j - 1], S[j - 1], s[j - 1], diff, j - 1, fl)
+            # z_j and v_{j-1} are functions of s unless their own factor (slots 3 of j, 2 of j - 1) is a variable
+            offm = None
+            if extra is not None:
+                masks = [m for m in (extra(SLOTS * (j - 2) + 3), extra(SLOTS * (j - 3) + 2) if j >= 3 else None)
+                         if m is not None]
+                offm = np.logical_or.reduce(masks) if masks else None
+            diff, true_diff = self._diff(z[j - 1], v[j - 1], y[j - 1], S[j - 1], s[j - 1], j - 1, fl, f,
+                                         SLOTS * (j - 2) + 4, offm)
+            V = V + self._W(z[j - 1], v[j - 1], S[j - 1], s[j - 1], true_diff, j - 1, fl, offm)
             dV = dV + s[j - 1] * zdot[j - 1] - diff * D[j - 1]
         return V, dV, s[r - 1], u0
 
@@ -150,17 +165,23 @@ class Terms:
         s = self.s_of(z)
         return self.evaluate([s[:, i] for i in range(self.r)])
 
-    def _diff(self, z, a, y, S, s, b_index, fl, f, slot):
+    def _diff(self, z, a, y, S, s, b_index, fl, f, slot, offm=None):
         """z_j - v_{j-1} = sig(y, rho) - sig(S, rho) with rho = 1/beta_{j-1} <= 1 and y - S = s.
 
         Enclosed by the intersection of: the plain difference z - a; s times the mean of
         rho |xi|^(rho-1) over xi between S and y (exactly s at k = 0); and, since sig(., rho) is
-        increasing and Hoelder, a value of the sign of s with modulus <= 2^(1-rho) |s|^rho.
-        Handed to ``f`` as slot ``slot`` (op "value") with the mask of boxes near its singularity.
+        increasing and Hoelder, a value of the sign of s with modulus <= 2^(1-rho) |s|^rho. These
+        identities hold where z = sig(y, rho) and a = sig(S, rho), i.e. at every state (the manifold
+        phi = phi(s)), and off it wherever neither z nor a contains a variable factor. Where ``offm``
+        (z or a a variable of its own, so z - a off the manifold is not in that enclosure) the
+        difference is handed to ``f`` as a variable of its own too, over the enclosure (its range on
+        the manifold). Handed to ``f`` as slot ``slot`` (op "value") with the mask of boxes near its
+        singularity (or offm). Returns (f's result for dV1/dt, the enclosure of z - a itself for W:
+        the plain difference where offm).
         """
         plain = z - a
         if fl:
-            return plain
+            return plain, plain
         rho = self.inv_beta[b_index]
         hull = _val(y).hull(_val(S))
         sv = _val(s)
@@ -175,13 +196,19 @@ class Terms:
         # difference): boxes whose y and S have opposite signs but stay away from 0 keep its gradient
         yv, Sv = _val(y), _val(S)
         near = ((yv.mig() < yv.hi - yv.lo) | (Sv.mig() < Sv.hi - Sv.lo)) if rho.lo < 1.0 else np.zeros(np.shape(lo), dtype=bool)
-        return f(slot, plain, (val, near), "value")
+        if offm is None:
+            return f(slot, plain, (val, near), "value"), val
+        # where z or a is a variable of its own, z - a is too (over val, which holds z(s) - a(s)):
+        # W(z, a) is then the integral of its own two arguments and needs their plain difference
+        return f(slot, plain, (val, near | offm), "value"), Iv(np.where(offm, v.lo, lo), np.where(offm, v.hi, hi))
 
-    def _W(self, z, a, S, s, diff, b_index, fl):
+    def _W(self, z, a, S, s, diff, b_index, fl, offm=None):
         """W(z, a, beta_b) with S = sig(a, beta_b), s = sig(z, beta_b) - S (its dW/dz), diff = z - a.
 
         W = (z - a)^2 / 2 times the mean of b |xi|^(b-1) over xi between a and z (b >= 1 here,
-        so that factor is bounded by its values at the ends of the hull of a and z)."""
+        so that factor is bounded by its values at the ends of the hull of a and z).
+        Where ``offm``, z and a are independent: the gradient is W's own, dW = (sig(z, b) - sig(a, b)) dz
+        - (z - a) b |a|^(b-1) da, in place of s dz - (z - a) dS (which needs S = sig(a, b), s = y - S)."""
         if fl:
             return (np.abs(z) ** self.beta_p1[b_index].mid - a * S) * self.inv_beta_p1[b_index].mid - S * (z - a)
         b = self.beta[b_index]
@@ -202,7 +229,23 @@ class Terms:
         # dW = s dz - (z - a) dS: the gradient on the box from those of z and S
         g = [(None if gz is None else sv * gz) if gS is None else
              (-(dv * gS) if gz is None else sv * gz - dv * gS) for gz, gS in zip(zg, Sg)]
+        if offm is not None and offm.any():
+            ag = a.g if isinstance(a, Dual) else [None] * d
+            zv, av = _val(z), _val(a)
+            dz = zv.sig(b) - av.sig(b)
+            da = -(dv * (b.iv() * av.pabs(self.beta_m1[b_index])))
+            own = [_gadd(None if gz is None else dz * gz, None if ga is None else da * ga) for gz, ga in zip(zg, ag)]
+            g = [_pick(offm, go, gm) for go, gm in zip(own, g)]
         return Dual(val, g)
+
+
+def _pick(mask, a, b):
+    """Elementwise a where mask else b, for gradient components (Iv or None: zero)."""
+    if a is None and b is None:
+        return None
+    a = Iv(0.0) if a is None else a
+    b = Iv(0.0) if b is None else b
+    return Iv(np.where(mask, a.lo, b.lo), np.where(mask, a.hi, b.hi))
 
 
 def _W_corners(z: Iv, a: Iv, b, bp1, inv_bp1) -> Iv:
