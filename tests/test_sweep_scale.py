@@ -129,6 +129,21 @@ def test_a_dask_cluster_started_ahead_is_taken_over_by_the_sweep_or_closed_at_th
     assert engine._AHEAD == {} and engine._BESIDE == {}
 
 
+def test_a_local_cluster_whose_worker_hangs_while_starting_is_an_engine_error_not_a_silent_wait(monkeypatch):
+    """LocalCluster waits for its workers without end; a worker stuck in its start (here a preload that
+    never returns) must fail the start within WORKER_START_TIMEOUT, with one line naming the engine."""
+    import time
+
+    from ftstab_mj.errors import EngineError
+
+    monkeypatch.setattr(engine, "WORKER_START_TIMEOUT", 3.0)
+    monkeypatch.setattr(engine, "LOCAL_PRELOAD", [*engine.LOCAL_PRELOAD, "tests.hung_worker"])
+    t0 = time.monotonic()
+    with pytest.raises(EngineError, match=r"--engine dask: expected a local cluster of 1 workers up within 3 s"):
+        engine._dask_connect(1, None)
+    assert time.monotonic() - t0 < 60  # the timeout, the nanny's kill and the cluster's close; not for ever
+
+
 FORKED_ROWS = """
 import json, sys
 from ftstab_mj.sweep.engine import execute, start_method

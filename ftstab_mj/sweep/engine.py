@@ -55,6 +55,10 @@ if TYPE_CHECKING:
 ENGINES = ("serial", "processes", "dask")
 CHUNKS_PER_WORKER = 4  # enough chunks for the workers to even out rows of unequal cost
 MAX_CHUNK = 32  # rows per task at most: a lost chunk (dead worker) costs a resume at most this many rows
+# a local cluster's worker not up within this (s) fails the start, which LocalCluster would otherwise wait
+# for without end (a worker process stopped while starting kept `ftstab sweep` waiting, silent, 605 s)
+WORKER_START_TIMEOUT = 60.0
+LOCAL_PRELOAD = ["ftstab_mj.sweep.runner"]  # what a local cluster's workers import as they start
 
 
 def guarded(task: Callable[[int, tuple], dict], index: int, params: tuple) -> dict:
@@ -193,17 +197,27 @@ def _dask_connect(workers: int, scheduler: str | None):
         # dashboard_address ":0": its HTTP server on a free port (None would still take 8787, and warn
         # when another cluster holds it). preload: each worker imports what a row needs as it starts
         # (runner.dask_setup), not when its first row arrives. No statistical profiler in our own
-        # workers: it samples the running row's stack every 10 ms (about 7 % of a worker's CPU here)
+        # workers: it samples the running row's stack every 10 ms (about 7 % of a worker's CPU here).
+        # death_timeout: a nanny whose worker is not up by then gives up (LocalCluster then closes all)
         with dask.config.set({"distributed.worker.profile.enabled": False,  # the nannies pass it on
                               "distributed.worker.multiprocessing-method": local_worker_method()}):
             cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=":0",
-                                   silence_logs=logging.ERROR, preload=["ftstab_mj.sweep.runner"])
+                                   silence_logs=logging.ERROR, preload=LOCAL_PRELOAD,
+                                   death_timeout=WORKER_START_TIMEOUT)
         return Client(cluster), cluster
-    except (OSError, TimeoutError) as exc:
+    except Exception as exc:  # noqa: BLE001 - any failure to start a local cluster is the engine's: one line
         if cluster is not None:
             cluster.close()
-        where = f"the scheduler at {scheduler}" if scheduler else f"a local cluster of {workers} workers"
-        raise EngineError(f"--scheduler: expected a reachable Dask scheduler, could not reach {where} ({exc})") from None
+        if scheduler:
+            if isinstance(exc, (OSError, TimeoutError)):
+                raise EngineError(f"--scheduler: expected a reachable Dask scheduler, could not reach the scheduler "
+                                  f"at {scheduler} ({exc})") from None
+            raise
+        # e.g. "Nanny failed to start." (RuntimeError) from distributed's own AssertionError when a nanny
+        # gives up on a worker still starting, or a port that cannot be bound (OSError)
+        cause = exc.__cause__ or exc
+        raise EngineError(f"--engine dask: expected a local cluster of {workers} workers up within "
+                          f"{WORKER_START_TIMEOUT:g} s, it did not start ({type(cause).__name__}: {cause})") from None
 
 
 def _dask_close(client, cluster) -> None:
