@@ -79,6 +79,25 @@ def test_a_window_cut_to_final_window_max_is_the_definition_and_replays(name, tm
         assert m["final_window_start"] == pytest.approx(1.8, abs=1e-12)
 
 
+def test_an_infinite_final_window_max_is_refused_in_one_line_that_says_what_to_write():
+    """inf has no JSON form (a log records the settings), so it is refused, and the line names the
+    key and the finite value that lifts the cap; that value is no cap: the window starts where the
+    uncapped one (None, as logs before the key replay) does, up to 1e7 samples of up to 100 s."""
+    from ftstab_mj.errors import ScenarioError
+    from ftstab_mj.metrics import final_window_start
+    from ftstab_mj.records import MetricSettings
+
+    with pytest.raises(ScenarioError) as exc:
+        load_scenario(dict(SHIPPED)["cart_r2_nominal"], ["metrics.final_window_max=inf"])
+    line = str(exc.value)
+    assert "\n" not in line and "metrics.final_window_max" in line and "found inf" in line
+    assert "write a value >= final_fraction x sim.duration, e.g. 1e9" in line
+    for n, h in ((2100, 1e-3), (10 ** 7, 1e-3), (10 ** 7, 100.0)):
+        for frac in (0.2, 1.0):
+            lifted, none = (MetricSettings(final_fraction=frac, final_window_max=cap) for cap in (1e9, None))
+            assert final_window_start(0.0, n, h, lifted) == final_window_start(0.0, n, h, none), (n, h, frac)
+
+
 def _check_streamed_metrics(sc, tmp_path) -> dict:
     """Run sc: its streamed metrics against the definitions on the whole arrays, against replay, and
     in batches of 7 with the ring in memory and in its file; returns them."""

@@ -26,6 +26,7 @@ from ftstab_mj import keypath
 from ftstab_mj.control import law_class
 from ftstab_mj.disturbances import KEYS_BY_KIND, MAX_VALUE, Signal
 from ftstab_mj.errors import ParameterError, ScenarioError
+from ftstab_mj.records import MetricSettings
 from ftstab_mj.scenario.schema import (
     COMPUTED, EXTERNAL_CHECKS, SIGNAL_DERIVED, ControllerSpec, LoopSpec, PlantSpec, Scenario, SensorSpec,
 )
@@ -101,6 +102,12 @@ class _Reader(Reader):
         return Scenario(**kw)
 
     def fields_of(self, cls, value, path, skip=(), checks=None):
+        if cls is MetricSettings and isinstance(value, dict) and value.get("final_window_max") == math.inf:
+            # inf is refused, not read as "no cap": a log records its settings as JSON, which has no
+            # inf, and a finite cap of at least final_fraction x sim.duration is already no cap
+            raise self.error(keypath.join(path, "final_window_max"), "a finite number of seconds > 0 (to measure "
+                             "the whole final fraction of any run, write a value >= final_fraction x sim.duration, "
+                             "e.g. 1e9)", "inf")
         return super().fields_of(cls, value, path, skip, checks or EXTERNAL_CHECKS.get(cls))
 
 
