@@ -200,9 +200,14 @@ def probe():  # in a worker: who its parent is, and what that parent runs
         cmdline = f.read()
     with open(f"/proc/{parent}/maps") as f:
         mujoco = any("mujoco" in line for line in f)
-    return {"parent": parent, "forkserver": b"forkserver" in cmdline, "mujoco": mujoco,
-            "parent_threads": len(os.listdir(f"/proc/{parent}/task"))}
+    import dask
 
+    return {"parent": parent, "forkserver": b"forkserver" in cmdline, "mujoco": mujoco,
+            "parent_threads": len(os.listdir(f"/proc/{parent}/task")),
+            "quiet": {key: dask.config.get(key) for key in LOCAL_QUIET}}
+
+
+from ftstab_mj.sweep.engine import LOCAL_QUIET
 
 if __name__ == "__main__":
     from ftstab_mj.sweep.engine import _dask_close, _dask_connect
@@ -218,7 +223,7 @@ if __name__ == "__main__":
 def test_a_local_dask_cluster_forks_its_workers_from_one_single_threaded_forkserver_that_loaded_mujoco(tmp_path):
     """The LocalCluster's workers are children of a forkserver (not of the command: not spawned), the
     same for both, with MuJoCo already loaded (they inherit the imports) and no thread but its main one
-    (so forking it is safe)."""
+    (so forking it is safe), and with engine.LOCAL_QUIET's settings."""
     script = tmp_path / "cluster.py"
     script.write_text(LOCAL_CLUSTER)
     out = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, cwd=ROOT, timeout=240)
@@ -227,3 +232,10 @@ def test_a_local_dask_cluster_forks_its_workers_from_one_single_threaded_forkser
     workers = seen["workers"]
     assert len(workers) == 2 and workers[0]["parent"] == workers[1]["parent"] != seen["me"]
     assert all(w["forkserver"] and w["mujoco"] and w["parent_threads"] == 1 for w in workers), workers
+    # and they run with the local cluster's rarer periodic work (the nannies pass the settings on)
+    import dask
+    import distributed  # noqa: F401 - loads distributed's defaults into dask.config
+
+    defaults = {key: dask.config.get(key) for key in engine.LOCAL_QUIET}  # this process: Dask's own
+    assert engine.LOCAL_QUIET and all(engine.LOCAL_QUIET[k] != v for k, v in defaults.items())
+    assert all(w["quiet"] == engine.LOCAL_QUIET for w in workers), workers

@@ -59,6 +59,12 @@ MAX_CHUNK = 32  # rows per task at most: a lost chunk (dead worker) costs a resu
 # for without end (a worker process stopped while starting kept `ftstab sweep` waiting, silent, 605 s)
 WORKER_START_TIMEOUT = 60.0
 LOCAL_PRELOAD = ["ftstab_mj.sweep.runner"]  # what a local cluster's workers import as they start
+# a local cluster's periodic work, made rarer: the event-loop health check (20 ms by default: only warns
+# when a loop blocks for seconds), the CPU, memory and I/O samples (500 ms: for the dashboard and the
+# heartbeats' metrics) and the memory monitor (100 ms: a worker above its memory limit, "auto" = the
+# machine's memory / workers, is stopped up to 1 s later)
+LOCAL_QUIET = {"distributed.admin.tick.interval": "1s", "distributed.admin.system-monitor.interval": "5s",
+               "distributed.worker.memory.monitor-interval": "1s"}
 
 
 def guarded(task: Callable[[int, tuple], dict], index: int, params: tuple) -> dict:
@@ -198,9 +204,11 @@ def _dask_connect(workers: int, scheduler: str | None):
         # when another cluster holds it). preload: each worker imports what a row needs as it starts
         # (runner.dask_setup), not when its first row arrives. No statistical profiler in our own
         # workers: it samples the running row's stack every 10 ms (about 7 % of a worker's CPU here).
-        # death_timeout: a nanny whose worker is not up by then gives up (LocalCluster then closes all)
+        # death_timeout: a nanny whose worker is not up by then gives up (LocalCluster then closes all).
+        # LOCAL_QUIET: the event loops' periodic work, which costs the command 5 % of a core and each
+        # worker 2 % while they wait (0.8 % and 0.25 % with it; load 4), beside the rows on the same cores
         with dask.config.set({"distributed.worker.profile.enabled": False,  # the nannies pass it on
-                              "distributed.worker.multiprocessing-method": local_worker_method()}):
+                              "distributed.worker.multiprocessing-method": local_worker_method(), **LOCAL_QUIET}):
             cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=":0",
                                    silence_logs=logging.ERROR, preload=LOCAL_PRELOAD,
                                    death_timeout=WORKER_START_TIMEOUT)
