@@ -220,7 +220,7 @@ class _Ratio:
                 chain = Dual(val, x.g) if isinstance(x, Dual) else val
             else:
                 chain = x.sig(e) if op == "sig" else x.pabs(e)
-                if e.hi >= 1.0 or not isinstance(x, Dual):
+                if e.hi >= 1.0 or e.is_exactly(0.0) or not isinstance(x, Dual):  # |x|^0 = 1 (k = 0)
                     return chain
                 val, near = chain.v, x.v.mig() < x.v.hi - x.v.lo
             if not isinstance(chain, Dual) or not near.any():
