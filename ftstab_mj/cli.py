@@ -561,7 +561,7 @@ def _workers(text: str) -> int:
 
 def _engine(args) -> str:
     """The sweep engine of --engine, --workers N and --scheduler: dask with --scheduler; else local
-    processes when N > 1 (forked workers cost ~3x less CPU than a local Dask cluster's), serial for N = 1."""
+    processes when N > 1 (a local Dask cluster costs about twice their CPU on 200 short rows), serial for N = 1."""
     engine = args.engine or ("dask" if args.scheduler else "processes" if args.workers > 1 else "serial")
     if engine == "serial" and (args.workers > 1 or args.scheduler):
         raise UsageError("--engine serial: expected no --workers/--scheduler (one process runs everything)")
