@@ -355,6 +355,23 @@ def test_certificate_is_deterministic():
     assert max(a.c_lower, c.c_lower) <= min(a.c_upper, c.c_upper)
 
 
+def test_a_proof_under_a_small_memory_cap_is_still_a_proof(monkeypatch):
+    """With MAX_LIVE_BOXES = 400 (r = 4 designed, k = -0.05: a few thousand boxes, so phase 1 splits
+    the boxes nearest to ub < 0 first and retires parked boxes beyond 200 into ``done``): still
+    certified, and its bracket and the uncapped one both hold c (they overlap); the retired boxes
+    keep the capped c_lower at most the uncapped one's c_upper, and the capped run is not cut
+    short by the live-box cap (phase 1 finishes: status certified)."""
+    import ftstab_mj.control.certificate as cm
+
+    h = HongController(4, -0.05, (0.83467, 1.4216, 2.8157, 100.0))
+    full = certify(h)
+    monkeypatch.setattr(cm, "MAX_LIVE_BOXES", 400)
+    capped = certify(h)
+    assert full.status == capped.status == "certified"
+    assert max(full.c_lower, capped.c_lower) <= min(full.c_upper, capped.c_upper)
+    assert capped != full  # the cap acted
+
+
 def test_constants_hold_off_the_level_set():
     """The constants are global by homogeneity: dV1/dt <= -c V1^alpha and |dV1/dz_r| <= c' V1^alpha'
     on random states at all scales, with the controller's own evaluation."""

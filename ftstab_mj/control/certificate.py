@@ -459,6 +459,12 @@ def _maximise(obj: _Ratio, seeds, rtol, deadline, stop_if_positive, progress=Non
     proven) or the witness reaches R >= 0 (stop: not certified); then the parked boxes are refined
     for the gap. A budget that runs out so decides the status before it tightens the gap. Each round splits
     the open boxes with the largest ub (at most SPLIT_BATCH of them) along one coordinate.
+
+    Memory in phase 1 (r = 6 at k < 0 needs ~1e7 boxes of it): the boxes phase 1 splits are those
+    with ub >= 0, whatever the order, so above MAX_LIVE_BOXES / 2 open boxes it splits those with
+    the smallest ub first (their children are the likeliest to be parked), and above
+    MAX_LIVE_BOXES / 2 parked boxes it keeps the quarter with the largest ub for the gap and retires
+    the rest (their largest ub, < 0, joins ``done``: c_lower stays a bound, the gap may stop there).
     """
     r, d = obj.r, obj.r - 1
     lb_seed = obj.points(seeds).lo
@@ -488,6 +494,7 @@ def _maximise(obj: _Ratio, seeds, rtol, deadline, stop_if_positive, progress=Non
     done = -np.inf  # the largest ub of the retired boxes
     proving = stop_if_positive  # phase 1: only the boxes with ub >= 0 are split
     parked, parked_top = [], -np.inf  # boxes (lo, hi, face, ub, split) with ub < 0, set aside in phase 1
+    n_parked = 0
     converged = False
     iteration = 0
     rng = rng if rng is not None else np.random.default_rng(0)
@@ -505,11 +512,18 @@ def _maximise(obj: _Ratio, seeds, rtol, deadline, stop_if_positive, progress=Non
                 parked.append((lo[park], hi[park], face[park], ub[park], split[park]))
                 parked_top = max(parked_top, float(ub[park].max()))
                 lo, hi, face, ub, split = lo[~park], hi[~park], face[~park], ub[~park], split[~park]
+                n_parked += int(park.sum())
+                if n_parked > MAX_LIVE_BOXES // 2:  # memory: keep the parked boxes with the largest ub for
+                    P = [np.concatenate(a) for a in zip(*parked)]  # the gap, retire the rest into done
+                    order = np.argpartition(P[3], len(P[3]) - MAX_LIVE_BOXES // 4)
+                    gone, kept = order[:len(P[3]) - MAX_LIVE_BOXES // 4], order[len(P[3]) - MAX_LIVE_BOXES // 4:]
+                    done = max(done, float(P[3][gone].max()))
+                    parked, n_parked = [tuple(a[kept] for a in P)], len(kept)
             if not len(ub):  # c > 0 proven: now the gap
                 proving = False
                 if parked:
                     lo, hi, face, ub, split = (np.concatenate(a) for a in zip(*parked))
-                parked, parked_top = [], -np.inf
+                parked, parked_top, n_parked = [], -np.inf, 0
                 continue
         if not len(ub):
             converged = True
@@ -529,7 +543,12 @@ def _maximise(obj: _Ratio, seeds, rtol, deadline, stop_if_positive, progress=Non
                 best, wit = float(lbs[j]), cz[j].copy()
         m = min(len(ub), max(256, min(SPLIT_BATCH, len(ub) // 2)))  # half: a few boxes far above the rest go deep fast
         if m < len(ub):
-            pick = np.argpartition(ub, len(ub) - m)[len(ub) - m:]
+            if proving and len(ub) > MAX_LIVE_BOXES // 2:
+                # phase 1 splits every box with ub >= 0 whatever the order, so the order only sets the
+                # memory: near the cap, the boxes closest to ub < 0 first (their children get parked)
+                pick = np.argpartition(ub, m)[:m]
+            else:
+                pick = np.argpartition(ub, len(ub) - m)[len(ub) - m:]
             rest = np.ones(len(ub), dtype=bool)
             rest[pick] = False
             keep = (lo[rest], hi[rest], face[rest], ub[rest], split[rest])
