@@ -254,17 +254,16 @@ def envelope(cert, V1_0: float, duration: float, n: int = ENVELOPE_POINTS, T: fl
     """Theorem 1's envelope from V1(0) = V1_0: (t (m,), V1 bound (m,)) on [0, min(T, duration)],
     and T(z0) (s, inf when the certificate gives none). From dV1/dt <= -c V1^alpha the comparison
     lemma gives V1(t) <= (V1_0^(1-alpha) - c (1-alpha) t)^(1/(1-alpha)) until T(z0) =
-    V1_0^(1-alpha) / (c (1-alpha)) (chain units). T: the run's :func:`time_bound` of z0 where the
-    caller has it (the same guaranteed number as the metrics; else Certificate.time_bound of V1_0).
-    What it guarantees: :func:`envelope_kind`."""
+    V1_0^(1-alpha) / (c (1-alpha)) (chain units); the points are guaranteed upper bounds of it,
+    computed from the guaranteed T (Certificate.V1_bound). T: the run's :func:`time_bound` of z0 where
+    the caller has it (the same guaranteed number as the metrics; else Certificate.time_bound of
+    V1_0). What it guarantees for the sampled loop: :func:`envelope_kind`."""
     if T is None:
         T = float(cert.time_bound(V1_0)) if cert is not None and cert.certified else math.inf
     if not math.isfinite(T) or not V1_0 > 0:
         return np.empty(0), np.empty(0), T
-    a, c = cert.alpha, cert.c
     t = np.linspace(0.0, min(T, duration), n)
-    inner = np.maximum(V1_0 ** (1.0 - a) - c * (1.0 - a) * t, 0.0)
-    return t, inner ** (1.0 / (1.0 - a)), T
+    return t, cert.V1_bound(T, t), T
 
 
 def envelope_kind(m: dict) -> str:

@@ -536,6 +536,46 @@ def test_theorem3_bounds_are_never_below_the_exact_formula_and_within_1e_12_of_i
     assert float_below > 0, "the float formula was never below the exact value: the test shows nothing"
 
 
+def test_envelope_points_and_chords_are_never_below_theorem_1s_exact_envelope():
+    """Theorem 1's envelope as drawn (metrics.envelope: Certificate.V1_bound from the guaranteed
+    T(z0)): at every point, and on the chord between neighbouring points (the envelope is convex),
+    >= (V1_0^(1-a) - c (1-a) t)^(1/(1-a)) evaluated exactly (mpmath, 60 digits) with c = c_lower;
+    on the first half of [0, T] within 1e-10 relative (T is <= 1e-13 relative above the exact one,
+    a few ulps more per operation, times the exponent 1/(1 - a) <= 200 for k <= -0.01). The float
+    formula falls below the exact value at some points (so rounding matters)."""
+    from ftstab_mj.control.certificate import CERTIFIED, Certificate
+    from ftstab_mj.metrics import envelope
+
+    rng = np.random.default_rng(5)
+    worst, float_below, n = 0.0, 0, 0
+    for case in range(60):
+        r = int(rng.integers(2, 7))
+        k = -float(rng.uniform(0.01, 1.0 / r)) * (1.0 - 1e-9)
+        c, V0 = 10.0 ** rng.uniform(-3, 1), 10.0 ** rng.uniform(-4, 4)
+        alpha = (2.0 + 2.0 * k) / (2.0 + k)
+        cert = Certificate(form="full", c=c, alpha=alpha, c_prime=1.0, alpha_prime=0.5, certified=True,
+                           samples=100, seed=0, status=CERTIFIED, c_lower=c, c_upper=c, c_prime_upper=1.0,
+                           witness=(0.5,) * r, k=k)
+        t, bound, T = envelope(cert, V0, np.inf, n=41)
+        assert t[-1] == T and bound[0] >= V0
+        with mp.workdps(60):
+            oma = 1 - (2 + 2 * mp.mpf(k)) / (2 + mp.mpf(k))
+            for i in range(len(t) - 1):
+                for w in (0.0, 0.5):  # the point, and the chord's midpoint
+                    ti = t[i] + w * (t[i + 1] - t[i])
+                    ex = mp.mpf(V0) ** oma - mp.mpf(c) * oma * mp.mpf(ti)
+                    ex = max(ex, 0) ** (1 / oma)
+                    got = (1 - w) * bound[i] + w * bound[i + 1]
+                    assert got >= ex, (case, i, w, got, ex)
+                    if w == 0.0 and ti <= T / 2:
+                        worst = max(worst, float((got - ex) / ex))
+                        fl = max(V0 ** (1.0 - alpha) - c * (1.0 - alpha) * ti, 0.0) ** (1.0 / (1.0 - alpha))
+                        float_below += fl < ex
+                        n += 1
+    assert n > 1000 and worst < 1e-10, (n, worst)
+    assert float_below > 0, "the float formula was never below the exact value: the test shows nothing"
+
+
 def test_cache_gives_the_fresh_result(tmp_path, monkeypatch):
     """A certificate read back from the disk cache is identical to a fresh one; an unwritable cache
     directory falls back to computing (same result)."""

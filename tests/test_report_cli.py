@@ -81,13 +81,20 @@ def test_the_envelope_is_theorem_1s_formula_and_t_z0_the_recorded_time_bound(log
     assert "continuous-time guarantee" in env.label
     V1_0 = log.loops["cart"]["V1"][0]
     formula = np.maximum(V1_0 ** (1 - a) - c * (1 - a) * env.x, 0.0) ** (1 / (1 - a))
-    np.testing.assert_allclose(env.y, formula, rtol=1e-12, atol=0)
     T = V1_0 ** (1 - a) / (c * (1 - a))
     (t_mark,) = curve(v1, "T(z0)").x
     # the mark is the run's guaranteed T(z0): V1(z0) enclosed and rounded outward, so at or above the
     # float formula, by the enclosure's width (about 1e-11 relative; interval.py's power margins)
     assert t_mark == log.recorded["metrics"]["loops"]["cart"]["time_bound"]
     assert T <= t_mark <= T * (1 + 1e-10)
+    # the curve is Theorem 1's envelope written from that guaranteed T, (c (1-a) (T - t))^(1/(1-a)),
+    # rounded upward: to rounding that formula, never below it nor below the float formula from V1_0;
+    # on the first half of [0, T] within 1/(1-a) = 9 times T's 1e-10 of the latter
+    from_T = (c * (1 - a) * np.maximum(t_mark - env.x, 0.0)) ** (1 / (1 - a))
+    np.testing.assert_allclose(env.y, from_T, rtol=1e-12, atol=0)
+    assert np.all(env.y >= from_T) and np.all(env.y >= formula)
+    first = env.x <= T / 2
+    np.testing.assert_allclose(env.y[first], formula[first], rtol=1e-9, atol=0)
     assert 6 < T < 8 and env.x[0] == 0.0 and env.x[-1] == pytest.approx(T, rel=1e-12) and env.y[-1] == 0.0
     # Theorem 1 on the sampled run: V1 stays under the envelope while the envelope is above the
     # settle level (below it the sampled loop's O(h) band may cross it, and does, near T(z0))

@@ -106,6 +106,21 @@ class Certificate:
         T = self._time_to_zero(V).hi
         return T if np.ndim(T) else float(T)
 
+    def V1_bound(self, T: float, t):
+        """Theorem 1's envelope as guaranteed upper bounds of V1 at the times t (array, s) of a
+        trajectory whose guaranteed T(z0) is T (>= the exact V1_0^(1-a)/(c(1-a))): with V1_0^(1-a) =
+        c (1-a) T_exact <= c (1-a) T, V1(t) <= (V1_0^(1-a) - c (1-a) t)^(1/(1-a)) <= (c (1-a) (T - t))^(1/(1-a)),
+        rounded outward (1 - a and 1/(1 - a) enclosed from the exact rational k, c = c_lower), 0 from T on.
+        The bound is convex in t (a power >= 1 of a linear function), so the chords between these
+        points lie above it too: a polyline through them is an upper envelope. Certified, k < 0 only."""
+        F = Fraction(float(self.k))
+        one_minus_a = exp_of(-F / (2 + F))
+        with np.errstate(all="ignore"):
+            inner = Iv(float(self.c_lower)) * one_minus_a.iv() * (Iv(float(T)) - Iv(np.asarray(t, dtype=float)))
+            inner = Iv(np.maximum(inner.lo, 0.0), np.maximum(inner.hi, 0.0))
+            # from T on V1 = 0 exactly (T >= the exact T(z0)); outward rounding would leave 5e-324 there
+            return np.where(np.asarray(t) >= T, 0.0, _pow_rational(inner, (2 + F) / -F).hi)
+
     def _time_to_zero(self, V: Iv) -> Iv:
         """An enclosure of V^(1-a) / (c_lower (1-a)) for every V in the enclosure ``V`` (certified, k < 0):
         the time dV1/dt <= -c V1^alpha takes from V1 = V to 0."""
