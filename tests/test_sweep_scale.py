@@ -144,6 +144,30 @@ def test_a_local_cluster_whose_worker_hangs_while_starting_is_an_engine_error_no
     assert time.monotonic() - t0 < 60  # the timeout, the nanny's kill and the cluster's close; not for ever
 
 
+
+def test_a_local_cluster_start_failing_with_a_message_of_several_lines_is_one_line(monkeypatch):
+    """distributed's start error carries the worker's own exception as its cause, whose message may span
+    lines: multiprocessing's "An attempt has been made to start a new process before the current
+    process has finished its bootstrapping phase" (a script without ``if __name__ == "__main__"``) is
+    seven; the engine's error stays one line, with the whole message in it."""
+    import distributed
+
+    from ftstab_mj.errors import EngineError
+
+    cause = RuntimeError("\n        An attempt has been made to start a new process before the\n"
+                         "        current process has finished its bootstrapping phase.\n")
+
+    def failing_start(*args, **kwargs):
+        raise RuntimeError("Nanny failed to start.") from cause
+
+    monkeypatch.setattr(distributed, "LocalCluster", failing_start)
+    with pytest.raises(EngineError) as err:
+        engine._dask_connect(1, None)
+    assert "\n" not in str(err.value)
+    assert str(err.value).endswith("(RuntimeError: An attempt has been made to start a new process before the "
+                                   "current process has finished its bootstrapping phase.)")
+
+
 FORKED_ROWS = """
 import json, sys
 from ftstab_mj.sweep.engine import execute, start_method

@@ -219,13 +219,18 @@ def _dask_connect(workers: int, scheduler: str | None):
         if scheduler:
             if isinstance(exc, (OSError, TimeoutError)):
                 raise EngineError(f"--scheduler: expected a reachable Dask scheduler, could not reach the scheduler "
-                                  f"at {scheduler} ({exc})") from None
+                                  f"at {scheduler} ({_one_line(exc)})") from None
             raise
         # e.g. "Nanny failed to start." (RuntimeError) from distributed's own AssertionError when a nanny
         # gives up on a worker still starting, or a port that cannot be bound (OSError)
         cause = exc.__cause__ or exc
         raise EngineError(f"--engine dask: expected a local cluster of {workers} workers up within "
-                          f"{WORKER_START_TIMEOUT:g} s, it did not start ({type(cause).__name__}: {cause})") from None
+                          f"{WORKER_START_TIMEOUT:g} s, it did not start ({type(cause).__name__}: {_one_line(cause)})") from None
+
+
+def _one_line(exc: BaseException) -> str:
+    """An exception's message on one line (a worker's own error, passed on by distributed, may span several)."""
+    return " ".join(str(exc).split())
 
 
 def _dask_close(client, cluster) -> None:
