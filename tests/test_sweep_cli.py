@@ -185,6 +185,18 @@ def test_an_unreachable_scheduler_is_one_line_and_leaves_nothing_to_resume(tmp_p
     assert list((tmp_path / "o").iterdir()) == []  # the same command works once the scheduler is up
 
 
+
+@pytest.mark.parametrize("address, why", [("notanaddress", "missing port number"), ("foo://127.0.0.1:1", "unknown address scheme")])
+def test_a_scheduler_address_dask_cannot_parse_is_one_line_exit_2_and_leaves_nothing_to_resume(tmp_path, address, why):
+    """distributed raises ValueError on an address it cannot parse (no port, an unknown scheme): bad
+    input, reported as the unreachable scheduler is (was a traceback, exit 1, a journal left behind)."""
+    sweep = small_sweep(tmp_path)
+    res = run_cli("sweep", sweep, "--out", tmp_path / "o", "--scheduler", address)
+    assert res.returncode == 2 and "Traceback" not in res.stderr, res.stderr
+    assert re.fullmatch(rf"error: --scheduler: expected a Dask scheduler address such as tcp://HOST:PORT, found "
+                        rf"{re.escape(repr(address))} \(ValueError: {why}.*\)", res.stderr.strip().splitlines()[-1])
+    assert list((tmp_path / "o").iterdir()) == []
+
 def test_robust_accuracy_scales_as_the_period_to_the_power_1_over_p_r(tmp_path):
     """The question of robust_accuracy_vs_period.toml, for r = 2 on one decade (1 to 10 ms), 8 s runs.
 

@@ -220,6 +220,9 @@ def _dask_connect(workers: int, scheduler: str | None):
             if isinstance(exc, (OSError, TimeoutError)):
                 raise EngineError(f"--scheduler: expected a reachable Dask scheduler, could not reach the scheduler "
                                   f"at {scheduler} ({_one_line(exc)})") from None
+            if isinstance(exc, ValueError):  # distributed's parse of the address: no port, an unknown scheme
+                raise EngineError(f"--scheduler: expected a Dask scheduler address such as tcp://HOST:PORT, found "
+                                  f"{scheduler!r} (ValueError: {_one_line(exc)})") from None
             raise
         # e.g. "Nanny failed to start." (RuntimeError) from distributed's own AssertionError when a nanny
         # gives up on a worker still starting, or a port that cannot be bound (OSError)
