@@ -626,3 +626,17 @@ def test_cli_certify_bad_input_one_line_exit_2(args, needle):
     assert res.returncode == 2
     lines = res.stderr.strip().splitlines()
     assert len(lines) == 1 and needle in lines[0] and "Traceback" not in res.stderr
+
+
+def test_a_mean_value_term_about_a_centre_that_is_not_a_finite_number_is_unbounded():
+    """_term bounds g (x - c) over x in [lo, hi]; a centre that is NaN or infinite (Baumann's centre
+    or the midpoint of a range with an infinite end) bounds nothing, so the term is inf (the box then
+    keeps its value enclosure), not the 5e-324 that NaN * g made of it (Iv's product reads NaN as 0 * inf)."""
+    from ftstab_mj.control.certificate import _term
+
+    g = Iv(np.array([1.0, 1.0, 1.0]), np.array([2.0, 2.0, 2.0]))
+    lo, hi = np.array([0.0, 0.0, 0.0]), np.array([1.0, np.inf, 1.0])
+    with np.errstate(invalid="ignore"):
+        t = _term(g, lo, hi, np.array([np.nan, np.inf, 0.25]))
+    assert t[0] == np.inf and t[1] == np.inf
+    assert 1.5 <= t[2] <= 1.5 * (1 + 1e-15)  # a finite centre: sup g (x - c) = 2 (1 - 0.25), rounded up

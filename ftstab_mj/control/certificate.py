@@ -388,9 +388,10 @@ def _baumann(g, lo, hi, mid):
 
 
 def _term(g, lo, hi, c):
-    """An upper bound of g (x - c) over g in the Iv g and x in [lo, hi] (arrays), outward-rounded."""
+    """An upper bound of g (x - c) over g in the Iv g and x in [lo, hi] (arrays), outward-rounded; inf
+    where g is NaN or the centre c is not a finite number (Iv's product reads a NaN factor as 0)."""
     t = (g * Iv(_dn(lo - c), _up(hi - c))).hi
-    return np.where(np.isnan(g.lo) | np.isnan(g.hi), np.inf, t)
+    return np.where(np.isnan(g.lo) | np.isnan(g.hi) | ~np.isfinite(c), np.inf, t)
 
 
 @dataclass
