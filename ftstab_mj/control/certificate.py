@@ -113,21 +113,27 @@ class Certificate:
         rounded outward (1 - a and 1/(1 - a) enclosed from the exact rational k, c = c_lower), 0 from T on.
         The bound is convex in t (a power >= 1 of a linear function), so the chords between these
         points lie above it too: a polyline through them is an upper envelope. Certified, k < 0 only."""
-        F = Fraction(float(self.k))
-        one_minus_a = exp_of(-F / (2 + F))
+        one_minus_a = self._one_minus_alpha()
         with np.errstate(all="ignore"):
-            inner = Iv(float(self.c_lower)) * one_minus_a.iv() * (Iv(float(T)) - Iv(np.asarray(t, dtype=float)))
+            inner = self._c_times_one_minus_alpha() * (Iv(float(T)) - Iv(np.asarray(t, dtype=float)))
             inner = Iv(np.maximum(inner.lo, 0.0), np.maximum(inner.hi, 0.0))
             # from T on V1 = 0 exactly (T >= the exact T(z0)); outward rounding would leave 5e-324 there
-            return np.where(np.asarray(t) >= T, 0.0, _pow_rational(inner, (2 + F) / -F).hi)
+            return np.where(np.asarray(t) >= T, 0.0, _pow_rational(inner, 1 / one_minus_a).hi)
 
     def _time_to_zero(self, V: Iv) -> Iv:
         """An enclosure of V^(1-a) / (c_lower (1-a)) for every V in the enclosure ``V`` (certified, k < 0):
         the time dV1/dt <= -c V1^alpha takes from V1 = V to 0."""
-        F = Fraction(float(self.k))
-        one_minus_a = exp_of(-F / (2 + F))  # > 0 for -1/r < k < 0
         with np.errstate(all="ignore"):
-            return V.pabs(one_minus_a) * (Iv(float(self.c_lower)) * one_minus_a.iv()).recip()
+            return V.pabs(exp_of(self._one_minus_alpha())) * self._c_times_one_minus_alpha().recip()
+
+    def _one_minus_alpha(self) -> Fraction:
+        """1 - alpha = -k / (2 + k) as the exact rational of the float k (> 0 for -1/r < k < 0)."""
+        F = Fraction(float(self.k))
+        return -F / (2 + F)
+
+    def _c_times_one_minus_alpha(self) -> Iv:
+        """An enclosure of c_lower (1 - alpha), the rate in Theorem 1's comparison lemma."""
+        return Iv(float(self.c_lower)) * exp_of(self._one_minus_alpha()).iv()
 
 
 def _hi(x):
