@@ -43,22 +43,32 @@ def no_control_callback_left_installed():
         assert timer_after == timer_before, "a test left MuJoCo's timer callback (mjcb_time) changed"
 
 
-def _sigint_default():
+def _terminal_signals():
     # A suite started in the background (non-interactive shell, `cmd &`) runs with SIGINT ignored,
-    # the children inherit that, and Python then installs no KeyboardInterrupt handler: a Ctrl-C
-    # test would wait for a run that cannot be interrupted. Give the child what a terminal gives.
-    signal.signal(signal.SIGINT, signal.SIG_DFL)
+    # one started under `nohup` with SIGHUP ignored; the children inherit that, and the command rightly
+    # leaves an ignored signal ignored: a Ctrl-C or SIGHUP test would wait for a run that cannot be
+    # interrupted. Give the child what a terminal gives: SIGINT, SIGTERM and SIGHUP at their default.
+    for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
+        signal.signal(sig, signal.SIG_DFL)
 
 
 def start_cli(*args, cwd=None, **popen_kwargs):
-    """Start ``python -m ftstab_mj ARGS`` in the background as a user's shell would (SIGINT at its
-    default, so Ctrl-C tests work whatever started the suite). Returns the Popen."""
+    """Start ``python -m ftstab_mj ARGS`` in the background as a user's shell would (SIGINT,
+    SIGTERM and SIGHUP at their default, so signal tests work whatever started the suite; a
+    ``preexec_fn`` given runs after that). Returns the Popen."""
+    then = popen_kwargs.pop("preexec_fn", None)
+
+    def preexec():
+        _terminal_signals()
+        if then is not None:
+            then()
+
     env = dict(os.environ)
     env["PYTHONPATH"] = str(ROOT) + os.pathsep + env.get("PYTHONPATH", "")
     popen_kwargs.setdefault("stdout", subprocess.PIPE)
     popen_kwargs.setdefault("stderr", subprocess.PIPE)
     return subprocess.Popen([sys.executable, "-m", "ftstab_mj", *map(str, args)], cwd=cwd or ROOT, env=env,
-                            text=True, preexec_fn=_sigint_default, **popen_kwargs)
+                            text=True, preexec_fn=preexec, **popen_kwargs)
 
 
 def wait_for_samples(log, size=200_000, timeout=120):

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from conftest import ROOT, _sigint_default
+from conftest import ROOT, _terminal_signals
 from ftstab_mj.logs.reader import read_log
 
 
@@ -31,7 +31,7 @@ def run_with_signal(tmp_path, spec, *args, script=False):
     else:
         cmd = [sys.executable, "-m", "ftstab_mj"]
     return subprocess.run(cmd + [str(a) for a in args], capture_output=True, text=True, env=env, cwd=ROOT,
-                          timeout=300, preexec_fn=_sigint_default)
+                          timeout=300, preexec_fn=_terminal_signals)
 
 
 def label(sig):

@@ -32,6 +32,24 @@ def test_sigterm_and_sighup_finish_the_run_like_ctrl_c(tmp_path, sig, code):
     assert replay.returncode == 0 and "recorded metrics: identical" in replay.stdout
 
 
+def test_a_sighup_ignored_by_the_starter_stays_ignored(tmp_path):
+    """Under `nohup` (SIGHUP ignored, inherited by the command) the run goes on through a SIGHUP;
+    a SIGTERM after it still stops it like Ctrl-C."""
+    def nohup():
+        signal.signal(signal.SIGHUP, signal.SIG_IGN)
+
+    proc = start_cli("run", "cart_r2_robust", "--out", tmp_path, "--set", "sim.duration=3600", preexec_fn=nohup)
+    log = tmp_path / "cart_r2_robust.mcap"
+    wait_for_samples(log)
+    proc.send_signal(signal.SIGHUP)
+    time.sleep(0.5)
+    alive = proc.poll() is None
+    proc.send_signal(signal.SIGTERM)
+    out, err = proc.communicate(timeout=120)
+    assert alive and proc.returncode == 143 and "error: run interrupted (SIGTERM)" in err, err
+    assert "SIGHUP" not in err
+
+
 def main_with_ctrl_c_at(delay, argv):
     """main(argv) with a SIGINT sent to this process ``delay`` s after the start (from a thread),
     Python's own SIGINT handler in force as for any program; (exit code, or "late" when the signal
