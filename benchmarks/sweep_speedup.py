@@ -27,6 +27,12 @@ gain without the start-up; its ratio to serial's is labelled "x"), the CPU of th
 configuration costs whatever the machine's other load), the 1-minute load average before each run,
 and checks that every configuration wrote the same table. The machine's other load counts: before each repeat,
 :func:`machine_parallelism` measures what 2 processes can gain at all at that moment.
+
+Every command runs as an installed package does, with ftstab_mj's modules compiled to bytecode first
+(:func:`compile_bytecode`). Where PYTHONDONTWRITEBYTECODE is set and the tree has no ``__pycache__``
+(this machine's sessions), Python compiles the ~55 modules a sweep imports from source at every start
+(~0.1 s of CPU, printed): a cost of that environment, not of the command, which no install pays (pip
+compiles a wheel's modules; a tree without that variable keeps what it compiled once).
 """
 
 import argparse
@@ -63,6 +69,12 @@ CASES = {
 "loops.cart.z0[0]" = {{uniform = [-1.0, 1.0]}}
 ''',
 }
+
+
+def compile_bytecode() -> None:
+    """ftstab_mj's modules compiled to bytecode in its tree (``__pycache__``, which git ignores), as an installed
+    package has them: Python reads them at each start, also under PYTHONDONTWRITEBYTECODE."""
+    subprocess.run([sys.executable, "-m", "compileall", "-q", str(ROOT / "ftstab_mj")], check=True, stdout=subprocess.DEVNULL)
 
 
 def sweep_file(folder: Path, case: str, duration: float = 1.0, samples: int = 200) -> Path:
@@ -161,36 +173,57 @@ if __name__ == "__main__":  # a spawned Dask worker imports this file again: it 
 """
 
 
-def fixed_costs(folder: Path, sweep: Path, journal: Path) -> dict[str, tuple[float, float]]:
+COMPILE = r"""
+import sys, time
+import ftstab_mj.cli, ftstab_mj.metrics, ftstab_mj.scenario.run, ftstab_mj.sim, ftstab_mj.sweep.runner
+files = [m.__file__ for m in list(sys.modules.values())
+         if getattr(m, "__file__", None) and m.__name__.startswith("ftstab_mj") and m.__file__.endswith(".py")]
+t0 = time.process_time()
+for f in files:
+    with open(f, "rb") as src:
+        compile(src.read(), f, "exec")
+print(len(files), time.process_time() - t0)
+"""
+
+
+def compile_cost(env: dict) -> tuple[int, float]:
+    """(modules, CPU s): compiling the ftstab_mj modules a sweep imports from their sources, what Python does at
+    every start where they have no bytecode (PYTHONDONTWRITEBYTECODE set, no __pycache__); median of 3."""
+    runs = [subprocess.run([sys.executable, "-c", COMPILE], cwd=ROOT, env=env, capture_output=True, text=True,
+                           check=True).stdout.split() for _ in range(3)]
+    return int(runs[0][0]), statistics.median(float(r[1]) for r in runs)
+
+
+def fixed_costs(folder: Path, sweep: Path, journal: Path, env: dict) -> dict[str, tuple[float, float]]:
     """{phase: (median CPU s, median wall s)} of 3 fresh processes; "interpreter" is `python -c pass` (wall)."""
     script = folder / "phases.py"
     script.write_text(PHASES)
     runs = []
     for _ in range(3):
         t0 = time.perf_counter()
-        subprocess.run([sys.executable, "-c", "pass"], check=True)
+        subprocess.run([sys.executable, "-c", "pass"], check=True, env=env)
         start = time.perf_counter() - t0
         out = subprocess.run([sys.executable, str(script), str(sweep), str(journal), str(folder / "t.parquet")],
-                             cwd=ROOT, capture_output=True, text=True, check=True, env=batch_environment(dict(os.environ)))
+                             cwd=ROOT, capture_output=True, text=True, check=True, env=env)
         reap()
         runs.append([("interpreter", start, start)] + [tuple(p) for p in json.loads(out.stdout.strip().splitlines()[-1])])
     return {name: (statistics.median(r[k][1] for r in runs), statistics.median(r[k][2] for r in runs))
             for k, (name, _, _) in enumerate(runs[0])}
 
 
-def start_external(folder: Path):
+def start_external(folder: Path, env: dict):
     """A `dask scheduler` and `dask worker --nworkers 2 --nthreads 1` as subprocesses; (address, procs)."""
     addr_file = folder / "scheduler.json"
     dask = [sys.executable, "-m", "distributed.cli.dask_scheduler"]
     sched = subprocess.Popen(dask + ["--scheduler-file", str(addr_file), "--port", "0", "--dashboard-address", ":0"],
-                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env)
     for _ in range(300):
         if addr_file.exists() and addr_file.stat().st_size:
             break
         time.sleep(0.1)
     worker = subprocess.Popen([sys.executable, "-m", "distributed.cli.dask_worker", "--scheduler-file", str(addr_file),
                                "--nworkers", "2", "--nthreads", "1", "--no-dashboard"],
-                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env)
     from distributed import Client
 
     with Client(scheduler_file=str(addr_file), timeout="30s") as client:
@@ -266,6 +299,8 @@ def main():
     become_subreaper()
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
+        compile_bytecode()
+        env = batch_environment(dict(os.environ))
         costs = setup_cost(tmp)
         for kind, (c1, c2, c0) in costs.items():
             print(f"CPU per row, {kind:<9}: {c1:.2f} ms (1 s rows), {c2:.2f} ms (2 s rows); set-up of a row "
@@ -274,8 +309,11 @@ def main():
         if args.case == "rows":  # the fixed costs, and what they leave of the speed-up
             ref = tmp / "ref"
             subprocess.run([sys.executable, "-m", "ftstab_mj", "sweep", str(sweep), "--out", str(ref)], cwd=ROOT,
-                           capture_output=True, check=True)
-            phases = fixed_costs(tmp, sweep, ref / f"{args.case}.jsonl")
+                           capture_output=True, check=True, env=env)
+            phases = fixed_costs(tmp, sweep, ref / f"{args.case}.jsonl", env)
+            modules, cpu = compile_cost(env)
+            print(f"bytecode: ftstab_mj compiled once, as installed; compiling the {modules} modules a sweep imports "
+                  f"from source at every start (PYTHONDONTWRITEBYTECODE, no __pycache__) would add {cpu:.3f} s of CPU")
             print(f"fixed costs of the command, fresh process, median of 3 (load: {os.getloadavg()[0]:.2f}):")
             for name, (cpu, wall) in phases.items():
                 print(f"  {name:<24} {cpu:6.3f} s CPU {wall:6.3f} s wall")
@@ -290,7 +328,7 @@ def main():
         }
         procs = ()
         if not args.no_external:
-            address, procs = start_external(tmp)
+            address, procs = start_external(tmp, env)
             configs["external dask, 2 workers"] = ("--scheduler", address)
         try:
             walls, sweeps, cpus, tables = {}, {}, {}, {}
@@ -305,7 +343,7 @@ def main():
                     r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
                     t0 = time.perf_counter()
                     proc = subprocess.run([sys.executable, "-m", "ftstab_mj", "sweep", str(sweep), "--out", str(out),
-                                           *extra], cwd=ROOT, capture_output=True, text=True)
+                                           *extra], cwd=ROOT, capture_output=True, text=True, env=env)
                     wall = time.perf_counter() - t0
                     reap(keep={p.pid for p in procs})  # a local cluster's forkserver and workers: their CPU counts too
                     r1 = resource.getrusage(resource.RUSAGE_CHILDREN)

@@ -272,3 +272,50 @@ def test_a_local_dask_cluster_forks_its_workers_from_one_single_threaded_forkser
     defaults = {key: dask.config.get(key) for key in engine.LOCAL_QUIET}  # this process: Dask's own
     assert engine.LOCAL_QUIET and all(engine.LOCAL_QUIET[k] != v for k, v in defaults.items())
     assert all(w["quiet"] == engine.LOCAL_QUIET for w in workers), workers
+
+
+@pytest.mark.parametrize("rows, workers", [(1, 2), (5, 2), (199, 2), (1000, 2), (64, 1), (300, 7)])
+def test_chunks_shrink_so_that_the_workers_run_out_of_rows_together(rows, workers):
+    """Guided chunks: in order, every row once; no chunk holds more than MAX_CHUNK rows nor more than its
+    share 1/(GUIDED x workers) of the rows still to hand out (or MIN_CHUNK), so when the last chunk is
+    taken every other worker has at most that many rows of its own left; only the last is below MIN_CHUNK."""
+    items = list(range(rows))
+    cut = engine.chunks(items, workers)
+    assert [i for c in cut for i in c] == items
+    sizes = [len(c) for c in cut]
+    left = rows
+    for size in sizes:
+        assert 1 <= size <= engine.MAX_CHUNK
+        assert size <= max(engine.MIN_CHUNK, -(-left // (engine.GUIDED * workers)))
+        left -= size
+    assert sizes == sorted(sizes, reverse=True)
+    assert all(s >= engine.MIN_CHUNK for s in sizes[:-1])
+    assert sizes[-1] <= engine.MIN_CHUNK or len(sizes) == 1
+
+
+MEANWHILE = """
+import json, multiprocessing, sys
+from ftstab_mj.sweep.engine import execute
+from tests.sweep_chain import ChainTask
+items = [(i, (("period", 0.01 * (i + 1)),)) for i in range(6)]
+seen = {}
+for engine in ("serial", "processes"):
+    calls, done = [], []
+    for i, _ in execute(items, ChainTask(0.2), engine, workers=2 if engine != "serial" else 1,
+                        meanwhile=lambda: calls.append((len(multiprocessing.active_children()), len(done)))):
+        done.append(i)
+    seen[engine] = [calls, sorted(done)]
+print(json.dumps(seen))
+"""
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="workers are forked on Linux only (spawned elsewhere)")
+def test_the_callers_work_meanwhile_runs_once_after_the_workers_are_forked_and_before_their_results():
+    """execute(meanwhile=...) runs the caller's work (a sweep: the table writer's imports) in this process once the
+    processes engine's 2 workers exist (so they never inherit what it starts: pyarrow's allocator thread),
+    before the workers' results are read (only the parent's first row is in by then); serial never calls it."""
+    out = subprocess.run([sys.executable, "-c", MEANWHILE], capture_output=True, text=True, cwd=ROOT, timeout=120)
+    assert out.returncode == 0, out.stderr
+    seen = json.loads(out.stdout)
+    assert seen["serial"] == [[], list(range(6))]
+    assert seen["processes"] == [[[2, 1]], list(range(6))]

@@ -25,7 +25,7 @@ from ftstab_mj.errors import EngineError, SweepError
 from ftstab_mj.records import COMPLETED
 from ftstab_mj.sweep.engine import execute
 from ftstab_mj.sweep.expand import Row
-from ftstab_mj.sweep.table import Journal, make_row, read_journal, write_table
+from ftstab_mj.sweep.table import Journal, load_writer, make_row, read_journal, write_table
 
 
 @dataclass
@@ -93,7 +93,8 @@ def run_sweep(name: str, rows: list[Row], task, out_dir, identity: dict, *, engi
     _say(progress, f"sweep {name}: {len(rows)} runs, {len(done)} done earlier, {len(todo)} to run ({where})")
     outcome = SweepOutcome(table_path, len(rows), len(done), 0, 0, 0.0)
     journal = Journal(journal_path)
-    results = execute(((r.index, r.params) for r in todo), task, engine, workers, scheduler)
+    results = execute(((r.index, r.params) for r in todo), task, engine, workers, scheduler,
+                      meanwhile=lambda: load_writer(table_path))  # imported while the workers run
     first_start = None  # time.time() at the start of the first run (its worker's clock: this machine's, or one kept in step)
     try:
         for i, result in results:

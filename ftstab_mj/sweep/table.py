@@ -100,6 +100,17 @@ def to_arrow(rows: list[dict]):
     return pa.table({n: _column([r.get(n) for r in rows]) for n in names})
 
 
+def load_writer(path: Path) -> None:
+    """Import what :func:`write_table` needs for ``path``'s format (pyarrow and its Parquet or CSV writer: ~0.05 s
+    of CPU), so that a sweep can do it while its workers run rather than after them."""
+    import pyarrow  # noqa: F401
+
+    if Path(path).suffix == ".csv":
+        import pyarrow.csv  # noqa: F401
+    else:
+        import pyarrow.parquet  # noqa: F401
+
+
 def write_table(rows: list[dict], path: Path) -> Path:
     """Write the rows as Parquet (``.parquet``) or CSV (``.csv``), chosen by the file's suffix."""
     table = to_arrow(rows)
