@@ -109,58 +109,119 @@ def _rrd_rows(path, entity):
     return sum(chunk.num_rows for chunk in RrdReader(str(path)).stream() if chunk.entity_path == entity)
 
 
-def main_with_signal_at(delay, sig, argv):
-    """main(argv) with ``sig`` sent to this process ``delay`` s after the start; (exit code or
-    "late" when it came after main returned, absorbed by a handler of the test's)."""
-    import os
+class Moments:
+    """The moments a run reports, as seen in this process: "open" (every log opened), "write" (a batch
+    written to every log), "close" (every log closed), each with its time (s) since ``start``. They
+    are read on the ProgressSink, the command's last sink, so each comes once all the logs are done,
+    still inside the run's critical block. ``arm(index, delay, sig)``: send ``sig`` to this process
+    ``delay`` s after moment ``index`` (0: the start of the command, i: the i-th reported moment),
+    and no later than moment index + 1: a run faster than the delay waits there for the signal (as a
+    slower machine would have), so the signal comes between the same two moments whatever the load."""
 
+    def __init__(self, monkeypatch):
+        from ftstab_mj.scenario.run import ProgressSink
+
+        self.seen, self._armed, self._sent = [], None, None
+        for name in ("open", "write", "close"):
+            monkeypatch.setattr(ProgressSink, name, self._reporting(name, getattr(ProgressSink, name)))
+
+    def _reporting(self, name, method):
+        def reported(sink, *args):
+            method(sink, *args)
+            self.seen.append((name, time.perf_counter() - self.t0))
+            if self._sent is not None and self._sent[0] + 1 == len(self.seen):
+                self._sent[1].join()  # the next moment: the signal is sent before the run goes past it
+            if self._armed is not None and self._armed[0] == len(self.seen):
+                self._fire()
+        return reported
+
+    def start(self):
+        self.seen, self._sent, self.t0 = [], None, time.perf_counter()
+        if self._armed is not None and self._armed[0] == 0:
+            self._fire()
+
+    def arm(self, index, delay, sig):
+        self._armed = (index, delay, sig)
+
+    def _fire(self):
+        import os
+
+        index, delay, sig = self._armed
+        self._armed = None
+        self._sent = (index, threading.Timer(delay, os.kill, (os.getpid(), sig)))
+        self._sent[1].start()
+
+    def join(self):
+        if self._sent is not None:
+            self._sent[1].join()
+
+
+def main_with_signal_at(moments, index, delay, sig, argv):
+    """main(argv) with ``sig`` sent to this process ``delay`` s after moment ``index`` of ``moments``;
+    (exit code or "late" when it came after main returned, absorbed by a handler of the test's)."""
     late = []
     saved = {s: signal.signal(s, lambda signum, frame: late.append(signum)) for s in (signal.SIGINT, signal.SIGTERM)}
-    timer = threading.Timer(delay, os.kill, (os.getpid(), sig))
+    moments.arm(index, delay, sig)
     try:
-        timer.start()
+        moments.start()
         code = main(argv)
-        timer.join()
+        moments.join()
         time.sleep(0.02)  # a signal sent just now is handled here
     finally:
-        timer.join()
+        moments.join()
         for s, h in saved.items():
             signal.signal(s, h)
     return "late" if late else code
 
 
 @pytest.mark.parametrize("scenario", ["cart_r2_robust", "arm_robust"])
-def test_a_signal_at_any_moment_leaves_logs_whose_metrics_are_the_replayed_ones(tmp_path, capsys, scenario):
+def test_a_signal_at_any_moment_leaves_logs_whose_metrics_are_the_replayed_ones(tmp_path, capsys, monkeypatch, scenario):
     """Ctrl-C or SIGTERM (alternately) at seeded moments spread over a whole `ftstab run` (loading,
     setup, opening the logs, every batch, closing): either no log at all (stopped before the logs
     were opened), or two complete logs holding the same samples, saying "interrupted" exactly when
-    the exit code is 128 + signal, with recorded metrics equal to the ones replayed from the samples."""
+    the exit code is 128 + signal, with recorded metrics equal to the ones replayed from the samples.
+
+    The moments are placed by what the run reports, not by a wall-clock guess of its length (a
+    duration measured on a quiet machine put 9 of 12 moments before the logs at load 8): a warm run
+    gives the times of its moments (start, logs opened, each batch, logs closed); each try takes a
+    seeded time in one of three spans of it (before the logs, the batches, closing and exit: one
+    try in three each, both signals in each), and sends the signal that long after the last moment
+    before it, once the try has reported that moment, and before the try goes past the next one (a
+    faster try waits there). So a signal falls between the same two moments whatever the load: the
+    tries in the batches' span are interrupted by construction."""
     from ftstab_mj.metrics import compute_metrics
 
+    moments = Moments(monkeypatch)
     argv = ["run", scenario, "--out", str(tmp_path / "o"), "--set", "sim.duration=1.5", "--json"]
-    whole = []
+    warm = []
     for _ in range(2):  # the second, warm, is what the tries take
-        t0 = time.perf_counter()
+        moments.start()
         assert main(argv) == 0
-        whole.append(time.perf_counter() - t0)
+        warm.append([("start", 0.0)] + moments.seen + [("end", time.perf_counter() - moments.t0)])
     capsys.readouterr()
+    names = [name for name, _ in warm[0]]
+    assert [name for name, _ in warm[1]] == names and names[1] == "open" and names[-2] == "close", warm
+    assert names[2:-2] == ["write"] * (len(names) - 4) and len(names) > 4, names
+    clock = np.array([t for _, t in min(warm, key=lambda m: m[-1][1])])
+    times = clock[:-1]  # a moment's time; the end is no moment to wait for
+    spans = [(0.0, clock[1]), (clock[1], clock[-3]), (clock[-3], clock[-1])]
     ref = read_log(tmp_path / "o" / f"{scenario}.mcap")  # the style rows Rerun's series hold beside samples
     static = {name: _rrd_rows(tmp_path / "o" / f"{scenario}.rrd", f"/loop/{name}/V1/log10_V1") - ref.n_samples
               for name in ref.loops}
     rng = np.random.default_rng({"cart_r2_robust": 10, "arm_robust": 6}[scenario])
     outcomes = {"completed": 0, "interrupted": 0, "no log": 0, "late": 0}
     tries = 12
-    whole = min(whole)
     for k, fraction in enumerate(rng.uniform(0.0, 1.0, tries)):
         sig = (signal.SIGINT, signal.SIGTERM)[k % 2]
+        span = spans[k % 3]
+        at = span[0] + fraction * (span[1] - span[0])  # in the warm run's time
+        index = int(np.searchsorted(times, at, side="right")) - 1  # the last moment before it
+        delay = at - times[index]
         out = tmp_path / f"try{k}"
-        delay = fraction * whole
-        t0 = time.perf_counter()
-        code = main_with_signal_at(delay, sig, ["run", scenario, "--out", str(out), "--set", "sim.duration=1.5"])
-        if code in (0, "late"):  # it ran to its end: the moments follow the command's duration as the load varies
-            whole = min(whole, time.perf_counter() - t0)
+        code = main_with_signal_at(moments, index, delay, sig, ["run", scenario, "--out", str(out), "--set", "sim.duration=1.5"])
         stdout, stderr = capsys.readouterr()
-        where = f"try {k}: {signal.Signals(sig).name} at {delay:.3f} s: exit {code}: {stderr!r}"
+        where = (f"try {k}: {signal.Signals(sig).name} {delay:.3f} s after {names[index]} (moment {index}, "
+                 f"{at:.3f} s of the warm run's {clock[-1]:.3f}): exit {code}: {stderr!r}")
         assert "Traceback" not in stderr, where
         if code == "late":
             outcomes["late"] += 1
