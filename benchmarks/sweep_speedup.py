@@ -136,7 +136,9 @@ def main():
     rows = expand(sweep)
     prepare(sweep, rows)
     mark("load, expand, prepare")
-    from ftstab_mj.sweep.table import read_journal, write_table
+    from ftstab_mj.sweep.table import load_writer, read_journal, write_table
+    load_writer(Path(sys.argv[3]))
+    mark("import the table writer")
     write_table(list(read_journal(Path(sys.argv[2])).values()), Path(sys.argv[3]))
     mark("write the table")
     import distributed
@@ -209,6 +211,18 @@ def fixed_costs(folder: Path, sweep: Path, journal: Path, env: dict) -> dict[str
         runs.append([("interpreter", start, start)] + [tuple(p) for p in json.loads(out.stdout.strip().splitlines()[-1])])
     return {name: (statistics.median(r[k][1] for r in runs), statistics.median(r[k][2] for r in runs))
             for k, (name, _, _) in enumerate(runs[0])}
+
+
+def best_speedup(fixed: float, beside: float, extra: float, rows: float) -> float:
+    """Serial's wall over 2 workers' at best (Amdahl): ``fixed`` s of the command that does not split, of which
+    ``beside`` s runs beside the workers (sharing the cores with them), ``extra`` s the engine adds to the
+    command (Dask: ``import distributed``; its cluster's start and per-row costs taken as free), ``rows`` s of rows."""
+    return (fixed + rows) / (fixed - beside + extra + (rows + beside) / 2)
+
+
+def rows_for(target: float, fixed: float, beside: float, extra: float, per_row: float) -> float:
+    """The rows of ``per_row`` s from which :func:`best_speedup` reaches ``target`` (< 2)."""
+    return max(0.0, (target * (fixed - beside / 2 + extra) - fixed) / (per_row * (1 - target / 2)))
 
 
 def start_external(folder: Path, env: dict):
@@ -317,10 +331,18 @@ def main():
             print(f"fixed costs of the command, fresh process, median of 3 (load: {os.getloadavg()[0]:.2f}):")
             for name, (cpu, wall) in phases.items():
                 print(f"  {name:<24} {cpu:6.3f} s CPU {wall:6.3f} s wall")
-            fixed = sum(phases[k][0] for k in ("interpreter", "imports", "load, expand, prepare", "write the table"))
-            rows_cpu = args.samples * costs["prepared"][0] / 1e3
-            print(f"  serial = {fixed:.2f} s fixed + {rows_cpu:.2f} s of rows: 2 workers started for free and "
-                  f"splitting the rows evenly give at best {(fixed + rows_cpu) / (fixed + rows_cpu / 2):.2f}x", flush=True)
+            fixed = sum(phases[k][0] for k in ("interpreter", "imports", "load, expand, prepare",
+                                                "import the table writer", "write the table"))
+            per_row = costs["prepared"][0] / 1e3
+            beside = phases["import the table writer"][0]  # made while the workers run (engine.execute's meanwhile)
+            print(f"  serial = {fixed:.2f} s fixed + {args.samples * per_row:.2f} s of rows; 2 workers started for free, "
+                  f"splitting the rows evenly, the table writer's import ({beside:.3f} s) run beside them:")
+            for name, extra in (("processes", 0.0), ("dask", phases["import distributed"][0])):
+                best = best_speedup(fixed, beside, extra, args.samples * per_row)
+                print(f"    {name:<9} + {extra:.2f} s ({'nothing' if not extra else 'import distributed'}) give at best "
+                      f"{best:.2f}x; 1.6x from {rows_for(1.6, fixed, beside, extra, per_row):.0f} rows of this size "
+                      f"(x{best_speedup(fixed, beside, extra, 1000 * per_row):.2f} at 1000, "
+                      f"x{best_speedup(fixed, beside, extra, 2000 * per_row):.2f} at 2000)", flush=True)
         configs = {
             "serial": ("--workers", "1"),
             "dask, 2 workers": ("--engine", "dask", "--workers", "2"),

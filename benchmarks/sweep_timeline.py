@@ -69,15 +69,16 @@ def main():
 
     sweep = load_sweep(path)
     rows = expand(sweep)
-    with engine.started_ahead(engine_name, workers, scheduler):
+    with engine.started_ahead(engine_name, workers, scheduler) as ahead:
         task, _ = prepare(sweep, rows)
         t_prepared = time.time()
-        if engine_name == "dask":
-            engine._AHEAD[(workers, scheduler)].result()
+        if ahead is not None:
+            ahead.connection.result()
         t_ready = time.time()
         cpu0 = time.process_time()
         got, t_last = [], None
-        for i, r in engine.execute([(r.index, r.params) for r in rows], Timed(task), engine_name, workers, scheduler):
+        for i, r in engine.execute([(r.index, r.params) for r in rows], Timed(task), engine_name, workers, scheduler,
+                                   ahead=ahead):
             got.append({k: r[k] for k in ("started_at", "elapsed_s", "pid", "cpu", "status")})
             if len(got) == len(rows):
                 t_last, cpu1 = time.time(), time.process_time()

@@ -587,13 +587,13 @@ def cmd_sweep(args) -> int:
     rows = expand(sweep)
     out = Path(args.out or Path("runs") / sweep.name)
     # a Dask cluster starts while the rows are checked; not for --resume, which may have nothing left to run
-    with started_ahead("serial" if args.resume else engine, args.workers, args.scheduler):
+    with started_ahead("serial" if args.resume else engine, args.workers, args.scheduler) as ahead:
         # every input check, every row validated, before any run or file
         task, identity = prepare(sweep, rows, args.set, out / "logs" if args.logs else None)
         print(_header(sweep.name, sweep.description, args.set))
         print(f"  base {sweep.scenario}, {len(rows)} runs -> {out}")
         outcome = run_sweep(sweep.name, rows, task, out, identity, engine=engine, workers=args.workers,
-                            scheduler=args.scheduler, resume=args.resume, fmt=args.format)
+                            scheduler=args.scheduler, resume=args.resume, fmt=args.format, ahead=ahead)
     counts = ", ".join(f"{n} {s}" for s, n in sorted(outcome.statuses.items()))
     own = f" ({outcome.rows_wall_s:.2f} s from the first run's start to the table)" if outcome.ran else ""
     print(f"{outcome.done}/{outcome.total} runs in the table ({counts}); "

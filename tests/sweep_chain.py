@@ -49,3 +49,26 @@ class NoValidationTask(ScenarioTask):
 
     def scenario(self, index, params):
         raise AssertionError(f"row {index} validated again in process {os.getpid()}")
+
+
+@dataclass(frozen=True)
+class StopOnceTask(ChainTask):
+    """A :class:`ChainTask` whose row ``row`` sends ``signal`` (SIGSTOP: a worker stopped mid-sweep; SIGKILL: one
+    that dies) to its own process the first time it runs anywhere (``marker``, a file it creates, says it
+    did); run again, that row runs as ChainTask's."""
+
+    row: int = 3
+    signal: str = "SIGSTOP"
+    marker: str = ""
+
+    def __call__(self, index, params) -> dict:
+        import signal
+
+        if index == self.row:
+            try:
+                os.close(os.open(self.marker, os.O_CREAT | os.O_EXCL))
+            except FileExistsError:
+                pass
+            else:
+                os.kill(os.getpid(), getattr(signal, self.signal))
+        return super().__call__(index, params)

@@ -16,7 +16,7 @@ from ftstab_mj.sweep import engine, expand, load_sweep, runner
 from ftstab_mj.sweep.run import run_sweep
 from ftstab_mj.sweep.runner import ScenarioTask, prepare
 from ftstab_mj.sweep.table import read_table
-from tests.sweep_chain import ChainTask, NoValidationTask
+from tests.sweep_chain import ChainTask, NoValidationTask, StopOnceTask
 from tests.test_sweep_engine import CHAIN_SWEEP, results, write_sweep
 
 
@@ -115,18 +115,20 @@ def test_workers_are_forked_only_from_a_single_threaded_process_with_no_simulati
 def test_a_dask_cluster_started_ahead_is_taken_over_by_the_sweep_or_closed_at_the_end_of_the_block(tmp_path):
     rows = expand(load_sweep(write_sweep(tmp_path, CHAIN_SWEEP)))
     serial = run_sweep("s", rows, ChainTask(), tmp_path / "serial", {}, progress=None)
-    with engine.started_ahead("dask", 1):
-        started = engine._AHEAD[(1, None)]
-        ahead = run_sweep("s", rows, ChainTask(), tmp_path / "ahead", {}, engine="dask", workers=1, progress=None)
-        assert (1, None) not in engine._AHEAD  # taken over by the sweep, which has it closed beside its table
+    with engine.started_ahead("dask", 1) as ahead:
+        started = ahead.connection
+        out = run_sweep("s", rows, ChainTask(), tmp_path / "ahead", {}, engine="dask", workers=1, progress=None,
+                        ahead=ahead)
+        assert ahead.taken  # by the sweep, which has it closed beside its table
     client, cluster = started.result()
     assert client.status == "closed" and cluster.status.name == "closed"  # by the end of the block
-    assert results(read_table(ahead.table)) == results(read_table(serial.table))
-    with engine.started_ahead("dask", 1):  # e.g. a row fails validation: the sweep never runs
-        unused = engine._AHEAD[(1, None)]
-    client, cluster = unused.result()
-    assert client.status == "closed" and cluster.status.name == "closed"
-    assert engine._AHEAD == {} and engine._BESIDE == {}
+    assert results(read_table(out.table)) == results(read_table(serial.table))
+    with engine.started_ahead("dask", 1) as unused:  # e.g. a row fails validation: the sweep never runs
+        pass
+    client, cluster = unused.connection.result()
+    assert not unused.taken and client.status == "closed" and cluster.status.name == "closed"
+    assert not any(isinstance(v, (dict, engine.StartedAhead)) and v for k, v in vars(engine).items()
+                   if not k.isupper() and not k.startswith("__"))  # no connection left in module state
 
 
 def test_a_local_cluster_whose_worker_hangs_while_starting_is_an_engine_error_not_a_silent_wait(monkeypatch):
@@ -319,3 +321,82 @@ def test_the_callers_work_meanwhile_runs_once_after_the_workers_are_forked_and_b
     seen = json.loads(out.stdout)
     assert seen["serial"] == [[], list(range(6))]
     assert seen["processes"] == [[[2, 1]], list(range(6))]
+
+
+STOPPED_WORKER = """
+import json, sys, time
+from ftstab_mj.sweep import engine
+from tests.sweep_chain import ChainTask, StopOnceTask
+engine.WORKER_STOP_TIMEOUT, engine.WATCH_INTERVAL = 1.0, 0.1
+items = [(i, (("period", 0.01 * (1 + i % 5)),)) for i in range(40)]
+t0 = time.monotonic()
+got = dict(engine.execute(items, StopOnceTask(0.2, row=5, signal=sys.argv[1], marker=sys.argv[2]), "processes", 2))
+wall = time.monotonic() - t0
+serial = dict(engine.execute(items, ChainTask(0.2), "serial"))
+print(json.dumps({"wall": wall, "rows": sorted(got), "lost": sorted(i for i, r in got.items() if r is None),
+                  "same": all(r["metrics"] == serial[i]["metrics"] for i, r in got.items() if r is not None)}))
+"""
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads the workers' states in /proc")
+@pytest.mark.parametrize("sig", ["SIGSTOP", "SIGKILL"])
+def test_a_process_worker_stopped_or_dead_mid_sweep_loses_its_rows_instead_of_hanging_the_sweep(tmp_path, sig):
+    """A worker that stops (SIGSTOP) at row 5 is killed after WORKER_STOP_TIMEOUT (1 s here) with one warning
+    line; one that dies breaks the pool as before. Either way execute() ends, reports every row once, row 5
+    and the pool's other unfinished rows as lost (None: a resume runs them), and every row it reports as
+    finished has the serial result."""
+    out = subprocess.run([sys.executable, "-c", STOPPED_WORKER, sig, str(tmp_path / "marker")], capture_output=True,
+                         text=True, cwd=ROOT, timeout=120)
+    assert out.returncode == 0, out.stderr
+    got = json.loads(out.stdout)
+    assert got["rows"] == list(range(40)) and 5 in got["lost"] and got["same"]
+    assert got["wall"] < 30  # the 1 s timeout, the pool's breakdown and shutdown; not for ever
+    warnings = [line for line in out.stderr.splitlines() if line.startswith("warning: sweep worker process")]
+    assert len(warnings) == (sig == "SIGSTOP")
+    if warnings:
+        assert "stopped" in warnings[0] and "killed" in warnings[0] and "1 s" in warnings[0]
+
+
+def test_a_local_dask_worker_stopped_mid_sweep_is_replaced_and_its_rows_run_again(tmp_path, monkeypatch):
+    """A local cluster's worker stopped (SIGSTOP) at row 5 misses its heartbeats; with the cluster's short
+    worker-ttl (WORKER_STOP_TIMEOUT; distributed's own floor: 10 heartbeats, 5 s) the scheduler has its nanny
+    kill and restart it and runs its chunk again: the table is complete and the serial one, well before the 5 to
+    10 minutes of distributed's default worker-ttl. The global Dask config is left as it was."""
+    import time
+
+    import dask
+
+    monkeypatch.setattr(engine, "WORKER_STOP_TIMEOUT", 1.0)
+    rows = [r for r in expand(load_sweep(write_sweep(tmp_path, CHAIN_SWEEP)))]
+    serial = run_sweep("s", rows, ChainTask(0.2), tmp_path / "serial", {}, progress=None)
+    ttl = dask.config.get("distributed.scheduler.worker-ttl")
+    t0 = time.monotonic()
+    out = run_sweep("s", rows, StopOnceTask(0.2, row=5, marker=str(tmp_path / "marker")), tmp_path / "dask", {},
+                    engine="dask", workers=2, progress=None)
+    assert time.monotonic() - t0 < 90
+    assert (tmp_path / "marker").exists()  # the row did stop its worker
+    assert out.lost == [] and out.done == len(rows)
+    assert results(read_table(out.table)) == results(read_table(serial.table))
+    assert dask.config.get("distributed.scheduler.worker-ttl") == ttl
+
+
+def test_a_failure_to_close_the_dask_engine_is_one_line_on_stderr_and_the_rest_is_still_closed(capsys):
+    """The client's or the local cluster's close may fail once the rows are in (also in started_ahead's thread,
+    where an exception would go unseen): one warning line each, the other one still closed, nothing raised."""
+    class Closes:
+        def __init__(self, error=None):
+            self.error, self.closed = error, False
+
+        def close(self):
+            self.closed = True
+            if self.error:
+                raise self.error
+
+    client, cluster = Closes(RuntimeError("the scheduler\n  went away")), Closes()
+    engine._dask_close(client, cluster)
+    assert client.closed and cluster.closed
+    assert capsys.readouterr().err == ("warning: --engine dask: closing the client failed (RuntimeError: the scheduler "
+                                       "went away); the sweep's results are not affected\n")
+    engine._dask_close(Closes(), Closes(OSError("port busy")))
+    assert capsys.readouterr().err.splitlines() == ["warning: --engine dask: closing the local cluster failed (OSError: "
+                                                    "port busy); the sweep's results are not affected"]

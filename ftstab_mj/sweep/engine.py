@@ -46,14 +46,11 @@ import time
 import uuid
 from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
-from typing import TYPE_CHECKING
 
 from ftstab_mj.callback import ONE_RUN
 from ftstab_mj.errors import EngineError
 from ftstab_mj.records import FAILED
 
-if TYPE_CHECKING:
-    from concurrent.futures import Future, ThreadPoolExecutor
 
 ENGINES = ("serial", "processes", "dask")
 GUIDED = 2  # a chunk holds about 1 / (GUIDED x workers) of the rows not yet handed out (guided scheduling)
@@ -62,6 +59,11 @@ MAX_CHUNK = 32  # rows per task at most: a lost chunk (dead worker) costs a resu
 # a local cluster's worker not up within this (s) fails the start, which LocalCluster would otherwise wait
 # for without end (a worker process stopped while starting kept `ftstab sweep` waiting, silent, 605 s)
 WORKER_START_TIMEOUT = 60.0
+# a worker stopped (SIGSTOP, a debugger) mid-sweep for this long (s) is killed and its rows lost (processes),
+# or declared dead by the scheduler and its rows run again elsewhere (a local cluster's worker-ttl); a worker
+# running a row stays responsive (the rows run in its own thread on Dask; processes are watched from here)
+WORKER_STOP_TIMEOUT = 10.0
+WATCH_INTERVAL = 1.0  # s between two looks at the process workers' states
 LOCAL_PRELOAD = ["ftstab_mj.sweep.runner"]  # what a local cluster's workers import as they start
 # a local cluster's periodic work, made rarer: the event-loop health check (20 ms by default: only warns
 # when a loop blocks for seconds), the CPU, memory and I/O samples (500 ms: for the dashboard and the
@@ -116,13 +118,14 @@ def chunks(items: list, workers: int) -> list[list]:
 
 
 def execute(items: Iterable[tuple[int, tuple]], task: Callable[[int, tuple], dict], engine: str = "serial",
-            workers: int = 1, scheduler: str | None = None,
-            meanwhile: Callable[[], None] | None = None) -> Iterator[tuple[int, dict | None]]:
+            workers: int = 1, scheduler: str | None = None, meanwhile: Callable[[], None] | None = None,
+            ahead: StartedAhead | None = None) -> Iterator[tuple[int, dict | None]]:
     """Run ``task`` on every (index, params); yield (index, result or None if lost) as runs finish.
 
     ``meanwhile``: the caller's own work that can overlap the rows (``ftstab sweep``: the table writer's
     imports); the processes and Dask engines call it once in this process, after their workers are
     running (forked workers: after the fork, so they do not inherit what it starts), the serial one never.
+    ``ahead``: what :func:`started_ahead` yielded; the Dask engine uses the connection it made.
     """
     items = list(items)
     if not items:  # nothing to run (e.g. resuming a finished sweep): start no engine
@@ -133,7 +136,7 @@ def execute(items: Iterable[tuple[int, tuple]], task: Callable[[int, tuple], dic
     elif engine == "processes":
         yield from _processes(items, task, workers, meanwhile)
     elif engine == "dask":
-        yield from _dask(items, task, workers, scheduler, meanwhile)
+        yield from _dask(items, task, workers, scheduler, meanwhile, ahead)
     else:
         raise EngineError(f"engine: expected one of {', '.join(ENGINES)}, found {engine!r}")
 
@@ -158,9 +161,44 @@ def start_method() -> str:
     return "spawn"
 
 
+def _stopped(pid: int) -> bool:
+    """Whether process ``pid`` is stopped (SIGSTOP, SIGTSTP, a debugger: state T or t in /proc; Linux only)."""
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().rsplit(")", 1)[1].split()[0] in ("T", "t")
+    except (OSError, IndexError):  # gone, or no /proc (not Linux): not stopped as far as we can tell
+        return False
+
+
+class _StopWatch:
+    """Kills a pool worker that stays stopped for WORKER_STOP_TIMEOUT s: ProcessPoolExecutor would wait for
+    its chunk without end. Its death breaks the pool (BrokenProcessPool): the rows not finished are lost,
+    the command says so (exit 1) and a resume runs them. The workers are this process's multiprocessing
+    children that were not there before the pool (``before``)."""
+
+    def __init__(self, before: set):
+        self.before, self.since, self.killed = before, {}, []
+
+    def check(self, timeout: float) -> None:
+        """Kill every worker stopped for ``timeout`` s or more (0: every stopped worker, now)."""
+        import multiprocessing
+        import os
+        import signal
+
+        now = time.monotonic()
+        for proc in set(multiprocessing.active_children()) - self.before:
+            if not _stopped(proc.pid):
+                self.since.pop(proc.pid, None)
+            elif now - self.since.setdefault(proc.pid, now) >= timeout:
+                os.kill(proc.pid, signal.SIGKILL)  # a stopped process cannot act on SIGTERM
+                self.killed.append(proc.pid)
+                del self.since[proc.pid]
+
+
 def _processes(items, task, workers, meanwhile=None) -> Iterator[tuple[int, dict | None]]:
     import multiprocessing
-    from concurrent.futures import ProcessPoolExecutor, as_completed
+    import sys
+    from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 
     if start_method() == "fork":
         # the first row runs here, before the fork: what each worker would do at its first row (lazy
@@ -172,19 +210,29 @@ def _processes(items, task, workers, meanwhile=None) -> Iterator[tuple[int, dict
     # checked again: a run may leave a thread behind (a log sink's), and then workers are spawned.
     # With "fork", the pool forks all its workers at the first submit, before it starts its own thread
     method = start_method()
+    watch = _StopWatch(set(multiprocessing.active_children()))
     pool = ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context(method))
     try:  # forked workers have this process's prepared rows in their memory; spawned ones get them sent
         futures = {pool.submit(run_chunk, task if method == "fork" else carrying(task, chunk), chunk): chunk
                    for chunk in chunks(items, workers)}
         if meanwhile is not None:
             meanwhile()
-        for fut in as_completed(futures):
-            if fut.exception() is not None:  # the worker died (BrokenProcessPool): its chunk is lost
-                yield from ((i, None) for i, _ in futures[fut])
-            else:
-                yield from fut.result()
+        pending = set(futures)
+        while pending:
+            done, pending = wait(pending, timeout=WATCH_INTERVAL, return_when=FIRST_COMPLETED)
+            watch.check(WORKER_STOP_TIMEOUT)
+            for fut in done:
+                if fut.exception() is not None:  # a worker died (BrokenProcessPool): the unfinished chunks are lost
+                    yield from ((i, None) for i, _ in futures[fut])
+                else:
+                    yield from fut.result()
     finally:
+        watch.check(0)  # leaving early (Ctrl-C, an error): a stopped worker would keep the shutdown waiting
         pool.shutdown(wait=True, cancel_futures=True)
+        for pid in watch.killed:
+            print(f"warning: sweep worker process {pid} was stopped (SIGSTOP, Ctrl-Z or a debugger) for "
+                  f"{WORKER_STOP_TIMEOUT:g} s or more: killed; the rows it and its pool had not finished are lost",
+                  file=sys.stderr)
 
 
 def local_worker_method() -> str:
@@ -223,13 +271,17 @@ def _dask_connect(workers: int, scheduler: str | None):
         # (runner.dask_setup), not when its first row arrives. No statistical profiler in our own
         # workers: it samples the running row's stack every 10 ms (about 7 % of a worker's CPU here).
         # death_timeout: a nanny whose worker is not up by then gives up (LocalCluster then closes all).
+        # worker_ttl: a worker silent (no heartbeat: every 0.5 s up to 10 workers) for WORKER_STOP_TIMEOUT s
+        # is restarted by its nanny and its tasks run again elsewhere; distributed's default, 5 minutes (checked
+        # every 5 minutes), kept a sweep waiting 5 to 10 minutes on a stopped worker. Ours only, not the config
         # LOCAL_QUIET: the event loops' periodic work, which costs the command 5 % of a core and each
         # worker 2 % while they wait (0.8 % and 0.25 % with it; load 4), beside the rows on the same cores
         with dask.config.set({"distributed.worker.profile.enabled": False,  # the nannies pass it on
                               "distributed.worker.multiprocessing-method": local_worker_method(), **LOCAL_QUIET}):
             cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=":0",
                                    silence_logs=logging.ERROR, preload=LOCAL_PRELOAD,
-                                   death_timeout=WORKER_START_TIMEOUT)
+                                   death_timeout=WORKER_START_TIMEOUT,
+                                   scheduler_kwargs={"worker_ttl": f"{WORKER_STOP_TIMEOUT}s"})
         return Client(cluster), cluster
     except Exception as exc:  # noqa: BLE001 - any failure to start a local cluster is the engine's: one line
         if cluster is not None:
@@ -255,20 +307,59 @@ def _one_line(exc: BaseException) -> str:
 
 
 def _dask_close(client, cluster) -> None:
-    client.close()
-    if cluster is not None:
-        cluster.close()
+    """Close the client, then the local cluster (None: none). A failure is one line on stderr, not an
+    exception: the rows' results are in by then (the table and the exit status do not depend on it), and it
+    may run in started_ahead's thread, whose errors nobody would see."""
+    import sys
+
+    for what, thing in (("client", client), ("local cluster", cluster)):
+        if thing is None:
+            continue
+        try:
+            thing.close()
+        except Exception as exc:  # noqa: BLE001 - whatever went wrong, the sweep's results stand
+            print(f"warning: --engine dask: closing the {what} failed ({type(exc).__name__}: {_one_line(exc)}); "
+                  f"the sweep's results are not affected", file=sys.stderr)
 
 
-_AHEAD: dict[tuple, Future] = {}  # (workers, scheduler) -> the Dask connection started_ahead() is making
-_BESIDE: dict[tuple, ThreadPoolExecutor] = {}  # (workers, scheduler) -> started_ahead()'s thread, which closes it
+class StartedAhead:
+    """A Dask connection being made in a background thread for one ``with started_ahead(...)`` block, which
+    owns it (no state outside it). ``connection``: the Future of (client, local cluster or None).
+    :func:`execute` given it with the same workers and scheduler takes it over (:meth:`take`) and has it
+    closed in the same thread once its rows are done (:meth:`close_beside`)."""
+
+    def __init__(self, workers: int, scheduler: str | None):
+        from concurrent.futures import ThreadPoolExecutor
+
+        self.key = (workers, scheduler)
+        self._thread = ThreadPoolExecutor(1, thread_name_prefix="ftstab-dask-start")
+        self.connection = self._thread.submit(_dask_connect, workers, scheduler)
+        self.taken = False
+
+    def take(self, workers: int, scheduler: str | None):
+        """(client, cluster) made ahead for (workers, scheduler) (its EngineError, if it failed); None when it
+        was made for others or is already taken."""
+        if self.taken or self.key != (workers, scheduler):
+            return None
+        self.taken = True
+        return self.connection.result()
+
+    def close_beside(self, client, cluster) -> None:
+        self._thread.submit(_dask_close, client, cluster)
+
+    def finish(self) -> None:
+        """Wait for the closes submitted; close the connection if it was never taken."""
+        self._thread.shutdown(wait=True)
+        if not self.taken and self.connection.exception() is None:
+            _dask_close(*self.connection.result())
 
 
 @contextmanager
 def started_ahead(engine: str, workers: int = 1, scheduler: str | None = None):
     """Start ``engine`` in a background thread while the block runs, so that its start-up overlaps
-    what the block does first (``ftstab sweep`` validates the rows); :func:`execute` with the same
-    engine inside the block takes it over (and reports its EngineError, if any, as it would have).
+    what the block does first (``ftstab sweep`` validates the rows); yields a :class:`StartedAhead`
+    (None for the engines that do not start ahead), which :func:`execute` given it (``ahead=``) takes
+    over (and reports its EngineError, if any, as it would have).
 
     Only the Dask engine starts ahead: a LocalCluster's worker processes take ~1 s of wall to start,
     a scheduler a round trip to answer. Serial needs nothing, and process workers are forked when the
@@ -278,28 +369,21 @@ def started_ahead(engine: str, workers: int = 1, scheduler: str | None = None):
     writes its table meanwhile, and the end of the block waits for it.
     """
     if engine != "dask":
-        yield
+        yield None
         return
-    from concurrent.futures import ThreadPoolExecutor
-
-    key = (workers, scheduler)
-    _BESIDE[key] = starter = ThreadPoolExecutor(1, thread_name_prefix="ftstab-dask-start")
-    _AHEAD[key] = started = starter.submit(_dask_connect, workers, scheduler)
+    ahead = StartedAhead(workers, scheduler)
     try:
-        yield
+        yield ahead
     finally:
-        _BESIDE.pop(key, None)
-        starter.shutdown(wait=True)  # and the close of the cluster execute() took over
-        if _AHEAD.pop(key, None) is started and started.exception() is None:  # not taken over: close it
-            _dask_close(*started.result())
+        ahead.finish()
 
 
-def _dask(items, task, workers, scheduler, meanwhile=None) -> Iterator[tuple[int, dict | None]]:
+def _dask(items, task, workers, scheduler, meanwhile=None, ahead: StartedAhead | None = None
+          ) -> Iterator[tuple[int, dict | None]]:
     from distributed import as_completed
 
-    key = (workers, scheduler)
-    ahead = _AHEAD.pop(key, None)
-    client, cluster = ahead.result() if ahead is not None else _dask_connect(workers, scheduler)
+    made = ahead.take(workers, scheduler) if ahead is not None else None
+    client, cluster = made if made is not None else _dask_connect(workers, scheduler)
     tag = uuid.uuid4().hex[:8]  # keys unique to this sweep on a shared scheduler
     try:
         if scheduler:  # the cluster's workers now (more may join later)
@@ -316,8 +400,7 @@ def _dask(items, task, workers, scheduler, meanwhile=None) -> Iterator[tuple[int
                 yield from fut.result()
             fut.release()
     finally:
-        beside = _BESIDE.get(key)
-        if beside is not None:  # started_ahead's block waits for it, after the caller wrote its table
-            beside.submit(_dask_close, client, cluster)
+        if made is not None:  # started_ahead's block waits for it, after the caller wrote its table
+            ahead.close_beside(client, cluster)
         else:
             _dask_close(client, cluster)

@@ -59,12 +59,13 @@ def _say(stream, text: str) -> None:
 
 def run_sweep(name: str, rows: list[Row], task, out_dir, identity: dict, *, engine: str = "serial",
               workers: int = 1, scheduler: str | None = None, resume: bool = False, fmt: str = "parquet",
-              progress=sys.stderr) -> SweepOutcome:
+              progress=sys.stderr, ahead=None) -> SweepOutcome:
     """Run the rows not yet journaled in ``out_dir``; write the table. See the module docstring.
 
     task: picklable, task(index, params) -> {"status", "error", "metrics"}; params: ((key path, value), ...).
     identity: JSON-able description of what every run starts from (part of the fingerprint).
     progress: stream for one line per finished run (None: silent).
+    ahead: the engine started ahead (engine.started_ahead), or None.
     """
     t0 = time.perf_counter()
     out = Path(out_dir)
@@ -94,7 +95,7 @@ def run_sweep(name: str, rows: list[Row], task, out_dir, identity: dict, *, engi
     outcome = SweepOutcome(table_path, len(rows), len(done), 0, 0, 0.0)
     journal = Journal(journal_path)
     results = execute(((r.index, r.params) for r in todo), task, engine, workers, scheduler,
-                      meanwhile=lambda: load_writer(table_path))  # imported while the workers run
+                      meanwhile=lambda: load_writer(table_path), ahead=ahead)  # imported while the workers run
     first_start = None  # time.time() at the start of the first run (its worker's clock: this machine's, or one kept in step)
     try:
         for i, result in results:
