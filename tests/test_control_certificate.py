@@ -370,6 +370,65 @@ def test_a_proof_under_a_small_memory_cap_is_still_a_proof(monkeypatch):
     assert capped != full  # the cap acted
 
 
+def _split_tree_bound(evaluated):
+    """max R bound over a branch and bound's final partition, rebuilt from every box it evaluated
+    ((face, lo, hi, ub) batches in evaluation order), independently of its bookkeeping: a box is a
+    half of the box it was cut from (the same face, one coordinate halved: bisection of [-1, 1] is
+    exact in floats), a box's bound is the smallest ub along its ancestry (a child lies in its
+    parent), and the partition is the boxes never cut (live, set aside or retired alike).
+    Returns (the largest bound of the partition, how many of its boxes have a bound >= 0)."""
+    bound = {}  # key -> [bound, cut]
+    for face, lo, hi, ub in evaluated:
+        for l, h, u in zip(lo, hi, ub):
+            parent = None
+            for j in range(len(l)):
+                up, down = h.copy(), l.copy()
+                up[j], down[j] = h[j] + (h[j] - l[j]), l[j] - (h[j] - l[j])
+                parent = next((key for key in ((face, l.tobytes(), up.tobytes()), (face, down.tobytes(), h.tobytes()))
+                               if key in bound), None)
+                if parent is not None:
+                    break
+            if parent is not None:
+                bound[parent][1] = True
+            bound[(face, l.tobytes(), h.tobytes())] = [float(u) if parent is None else min(float(u), bound[parent][0]), False]
+    leaves = [b for b, cut in bound.values() if not cut]
+    return max(leaves), sum(b >= 0 for b in leaves)
+
+
+@pytest.mark.parametrize("r, k, gains, cap, max_boxes", [
+    (4, -0.05, (0.83467, 1.4216, 2.8157, 100.0), 400, 10 ** 7),  # phase 1 finishes (certified), parked boxes retired
+    (5, 0.0, (0.65, 1.2, 1.62, 12.63, 1000.0), 2000, 60_000),  # ends at max_boxes splitting the smallest ub first
+])
+def test_c_lower_under_the_live_box_cap_is_the_bound_of_every_box_at_the_end(monkeypatch, r, k, gains, cap, max_boxes):
+    """A run under a small live-box cap (above cap / 2 open boxes phase 1 splits those with the
+    smallest ub first, above cap / 2 parked ones it retires the smallest) returns c_lower = minus the
+    largest bound over all the boxes it holds at its end, live, parked and retired: the bound of the
+    final partition rebuilt from every box evaluated (_split_tree_bound), to the bit. The r = 5 run
+    ends in the smallest-first mode (more than cap / 2 boxes with a bound >= 0, i.e. open, at the
+    end); its c_lower (-41.4: the boxes with the largest ub are left unsplit in that mode) is the
+    current bound, not a stale one, and below the exact k = 0 value."""
+    import ftstab_mj.control.certificate as cm
+
+    monkeypatch.setattr(cm, "MAX_LIVE_BOXES", cap)
+    evaluated, boxes = [], cm._Ratio.boxes
+
+    def recorded(obj, face, lo, hi, *args, **kwargs):
+        out = boxes(obj, face, lo, hi, *args, **kwargs)
+        if obj.kind == "c":
+            evaluated.append((face, lo.copy(), hi.copy(), out[0].copy()))
+        return out
+
+    monkeypatch.setattr(cm._Ratio, "boxes", recorded)
+    cert = certify(HongController(r, k, gains), max_boxes=max_boxes)
+    top, open_at_end = _split_tree_bound(evaluated)
+    assert cert.c_lower == -top, (cert.c_lower, -top)
+    if k == 0.0:
+        assert cert.status == "undecided" and open_at_end > cap // 2, (cert.status, open_at_end)
+        assert cert.c_lower <= exact_k0(gains) <= cert.c_upper
+    else:
+        assert cert.status == "certified"
+
+
 def test_constants_hold_off_the_level_set():
     """The constants are global by homogeneity: dV1/dt <= -c V1^alpha and |dV1/dz_r| <= c' V1^alpha'
     on random states at all scales, with the controller's own evaluation."""
