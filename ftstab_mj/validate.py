@@ -205,23 +205,35 @@ def _escaped(text: str, i: int) -> bool:
 def structure_problem(data) -> tuple[str, str, str] | None:
     """(key path, expected, found) of the first problem of parsed data, else None: depth, size, integers.
 
-    Iterative, so it is safe on any data (it runs before every recursive walk of a file's values).
+    Iterative, so it is safe on any data (it runs before every recursive walk of a file's values, and on
+    every sweep row). A value's place is kept as (parent's place, key), and written as a key path only for
+    the value that has the problem: writing every value's path cost ~60 % of the walk.
     """
-    stack, count = [("", data, 0)], 0
+    stack, count = [(None, data, 0)], 0
     while stack:
-        path, v, depth = stack.pop()
+        where, v, depth = stack.pop()
         count += 1
         if count > MAX_ITEMS:
-            return path or "(top level)", f"at most {MAX_ITEMS} values in one file", "more"
+            return _path_of(where) or "(top level)", f"at most {MAX_ITEMS} values in one file", "more"
         if depth > MAX_DEPTH:
-            return path, f"arrays and tables nested at most {MAX_DEPTH} deep", "deeper nesting"
+            return _path_of(where), f"arrays and tables nested at most {MAX_DEPTH} deep", "deeper nesting"
         if isinstance(v, dict):
-            stack.extend((keypath.join(path, str(k)), x, depth + 1) for k, x in v.items())
+            stack.extend(((where, str(k)), x, depth + 1) for k, x in v.items())
         elif isinstance(v, (list, tuple)):
-            stack.extend((keypath.join(path, i), x, depth + 1) for i, x in enumerate(v))
+            stack.extend(((where, i), x, depth + 1) for i, x in enumerate(v))
         elif isinstance(v, int) and not isinstance(v, bool) and not INT64[0] <= v <= INT64[1]:
-            return path, "an integer of 64 bits (TOML integers are 64-bit; write a float such as 1e20)", describe(v)
+            return (_path_of(where), "an integer of 64 bits (TOML integers are 64-bit; write a float such as 1e20)",
+                    describe(v))
     return None
+
+
+def _path_of(where) -> str:
+    """The key path of a place of structure_problem: None (the top) or (parent's place, key)."""
+    parts = []
+    while where is not None:
+        where, key = where
+        parts.append(key)
+    return keypath.text(reversed(parts))
 
 
 # -- the reader ---------------------------------------------------------------------------------------
@@ -351,7 +363,8 @@ class Reader:
         self.table(value, path, names)
         out = {}
         for f in flds:
-            p = keypath.join(path, f.name)
+            # keypath.join without its regex: an ASCII identifier is a bare TOML key
+            p = (f"{path}.{f.name}" if path else f.name) if f.name.isascii() else keypath.join(path, f.name)
             if f.name not in value:
                 if f.default is MISSING and f.default_factory is MISSING:
                     doc = f.metadata.get("doc", f.name)

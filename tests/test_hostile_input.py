@@ -134,3 +134,16 @@ def test_a_run_out_of_memory_mid_way_closes_its_logs_as_failed_in_one_line(tmp_p
     log = read_log(tmp_path / "cart_r2_robust.mcap")
     assert log.recorded["status"] == "failed" and "MemoryError" in log.recorded["message"]
     assert log.n_samples == 2 * calls[0]  # the two batches computed before the failure, nothing else
+
+
+def test_a_structure_problem_is_named_by_its_whole_key_path_quoted_where_toml_needs_it():
+    """structure_problem keeps a value's place as (parent, key) and writes its key path only for the value at
+    fault: the path is keypath's, array indices and quoted keys included, at any depth."""
+    from ftstab_mj.validate import MAX_DEPTH, structure_problem
+
+    assert structure_problem({"a": {"b": [1, 2, {"c d": 2 ** 70}]}})[0] == 'a.b[2]."c d"'
+    deep = node = {}
+    for _ in range(MAX_DEPTH + 3):
+        node["k"] = node = {}
+    assert structure_problem({"x": [deep]})[0] == "x[0]" + ".k" * (MAX_DEPTH - 1)  # the first value too deep
+    assert structure_problem({"ok": [1, {"y": "z"}]}) is None
