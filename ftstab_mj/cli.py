@@ -920,7 +920,7 @@ def build_parser() -> argparse.ArgumentParser:
     mc.add_argument("--seed", type=int, default=0, help="seed of the draw of initial states (default 0)")
     mc.add_argument("--loop", help="the loop whose z0 is drawn (default: the first)")
     mc.add_argument("--on", choices=("chain", "plant"), default="chain",
-                    help="chain: the loop on the exact ideal chain (carts without friction or damping); "
+                    help="chain: the loop on the exact ideal chain (ideal-chain scenarios, carts without friction or damping); "
                          "plant: runs of the scenario itself, like ftstab run")
     mc.add_argument("--workers", type=_workers, default=1, metavar="N", help="plant: parallel runs")
     mc.add_argument("--engine", choices=("serial", "processes", "dask"),

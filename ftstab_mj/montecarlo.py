@@ -15,9 +15,9 @@ Two ways to run the trajectories ("on"):
 
 * ``"chain"``: the scenario's loop on the ideal chain z_r' = phi + gamma u integrated exactly
   (ftstab_mj.ideal_chain; the native kernel runs a chunk of states at once), with the same law,
-  period, duration and signals. The carts take phi and gamma in chain units, so a frictionless,
-  undamped cart scenario has the chain as its exact twin (up to MuJoCo's rounding); other plants
-  are refused for this mode.
+  period, duration and signals. An ideal-chain scenario is that chain (the same bits); the carts
+  take phi and gamma in chain units, so a frictionless, undamped cart scenario has the chain as its
+  exact twin (up to MuJoCo's rounding); other plants are refused for this mode.
 * ``"plant"``: each state is a run of the scenario with ``loops.<loop>.z0`` set, on the sweep
   engines (serial, local processes or a Dask cluster): the metrics are exactly those ``ftstab run``
   prints for that z0.
@@ -74,11 +74,12 @@ def _chain_loop(sc, loop: str):
         raise ScenarioError("montecarlo", "--loop", "a loop of the scenario (" + ", ".join(x.name for x in sc.loops) + ")",
                             repr(loop))
     plant = make_plant(sc.plant.model, sc.plant.params)
-    twin = sc.plant.model in ("cart", "cart_integrating") and not getattr(plant, "friction", 0.0) \
-        and not getattr(plant, "damping", 0.0)
+    twin = sc.plant.model == "ideal_chain" or sc.plant.model in ("cart", "cart_integrating") \
+        and not getattr(plant, "friction", 0.0) and not getattr(plant, "damping", 0.0)
     if not twin or any(stage is not None for stage in (lp.sensor, lp.observer, lp.actuator)):
-        raise ScenarioError("montecarlo", "--on chain", "a frictionless, undamped cart loop without sensor, observer "
-                            "or actuator models (its exact twin is the ideal chain); use --on plant", sc.plant.model)
+        raise ScenarioError("montecarlo", "--on chain", "an ideal-chain or frictionless, undamped cart loop without "
+                            "sensor, observer or actuator models (its exact twin is the ideal chain); use --on plant",
+                            sc.plant.model)
     return lp, plant
 
 

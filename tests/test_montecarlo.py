@@ -105,3 +105,23 @@ def test_plant_worst_case_rerun_with_ftstab_run_gives_the_same_settling_time(tmp
     assert m["z0"] == worst["z0"] and m["settle_time"] == worst["settle_time"]
     assert m["time_bound"] == worst["time_bound"]
 
+
+def test_chain_mode_on_an_ideal_chain_scenario_and_its_worst_case_rerun_with_ftstab_run(tmp_path):
+    """An ideal-chain scenario is its own exact twin: `--on chain` runs it on the native kernel, and
+    the worst case's z0 rerun with `ftstab run` (the ideal-chain plant, the Python loop) gives the
+    same settling time and T(z0) (r = 4, the robust law inside its bounds: no state beyond its bound)."""
+    out = tmp_path / "mc"
+    res = run_cli("montecarlo", "ideal_chain_r4", "--states", "20", "--box", "1,1,1,1", "--set", "sim.duration=8",
+                  "--out", out, "--json")
+    assert res.returncode == 0, res.stderr
+    summary = json.loads(res.stdout)
+    assert summary["states"] == summary["settled"] == 20 and summary["bound_applies"] is True
+    assert summary["violations"] == 0
+    worst = summary["worst"]
+    z0 = "[" + ", ".join(repr(x) for x in worst["z0"]) + "]"
+    rerun = run_cli("run", "ideal_chain_r4", "--set", "sim.duration=8", "--set", f"loops.chain.z0={z0}",
+                    "--out", tmp_path / "runs", "--json")
+    assert rerun.returncode == 0, rerun.stderr
+    m = json.loads(rerun.stdout)["loops"]["chain"]
+    assert m["z0"] == worst["z0"] and m["settle_time"] == worst["settle_time"]
+    assert m["time_bound"] == worst["time_bound"]
