@@ -27,12 +27,13 @@ from __future__ import annotations
 import time
 from dataclasses import asdict, dataclass, field
 from fractions import Fraction
+from typing import NamedTuple
 
 import numpy as np
 
 from ftstab_mj.control.hong import HongController
 from ftstab_mj.control.hong_terms import SLOTS, SimplifiedTerms, Terms, _power, exp_of
-from ftstab_mj.control.interval import Dual, Exp, Iv, _dn, _up
+from ftstab_mj.control.interval import Dual, Exp, Iv, _dn, _up, affine_remainder, secant_slope
 from ftstab_mj.errors import ParameterError
 
 DEFAULT_SAMPLES = 20_000  # witness search: states sampled on the faces before the B&B
@@ -208,7 +209,9 @@ class _Ratio:
 
     def _ratio(self, V, dV, sr):
         num = dV if self.kind == "c" else sr.abs()
-        return num * V.pabs(self.a).recip()
+        # V1 > 0 at every state of the faces (positive definite, the faces exclude z = 0), so 1/V1^a
+        # is in [1/hi, inf) also where the enclosure of V1 reaches 0
+        return num * V.pabs(self.a).recip_pos()
 
     def floats(self, z):
         """R at float states z (n, r) (an estimate: rounding not enclosed)."""
@@ -225,47 +228,51 @@ class _Ratio:
 
     def product(self, face: int, lo, hi):
         """R on boxes of face ``face`` (lo, hi (n, r - 1): the s_i, i != face) as the function F of
-        the box and the phi ranges (see ``boxes``), with forward differentiation.
+        the box and the remainder ranges (see ``boxes``), with forward differentiation.
 
-        Returns (F: Dual, value and gradient enclosures over the product; phis: {slot: (near (n,) bool,
-        range Iv (n,))}, the factors that are variables of their own on the boxes ``near``; split:
-        {slot: (n, r - 1)}, how much of each such range a halving of each box coordinate removes,
-        for the split rule)."""
+        Returns (F: Dual, value and gradient enclosures over the product; phis: {slot: _Split}, the
+        factors split affinely on the boxes ``near``; split: {slot: (n, r - 1)}, how much of each
+        remainder's range a halving of each box coordinate removes, for the split rule)."""
         d, r, n = self.r - 1, self.r, len(lo)
         m = SLOTS * max(0, r - 1)  # extra variables: the factor slots of Terms.evaluate
         phis, split, through = {}, {}, {}
 
         def box_factor(slot, x, e, op):
-            if op == "value":
-                val, near = e
-                chain = Dual(val, x.g) if isinstance(x, Dual) else val
-            else:
-                chain = x.sig(e) if op == "sig" else x.pabs(e)
-                if e.hi >= 1.0 or e.is_exactly(0.0) or not isinstance(x, Dual):  # |x|^0 = 1 (k = 0)
-                    return chain
-                val, near = chain.v, x.v.mig() < x.v.hi - x.v.lo
-            if not isinstance(chain, Dual) or not near.any():
+            if op == "value":  # z_j - v_{j-1}: on the product it is off the manifold by at most dev
+                if not isinstance(x, Dual):
+                    return e
+                return Dual(_widened(e, x, phis, d), x.g)
+            chain = x.sig(e) if op == "sig" else x.pabs(e)
+            if (not isinstance(x, Dual) or e.is_exactly(1.0) or e.is_exactly(0.0) or e.lo <= 1.0 <= e.hi
+                    or (op == "pabs" and e.lo > 1.0)):  # |x|^0 = 1 (k = 0); no |x|^e, e > 1, is a slot
                 return chain
-            keep = ~near
-            g = [None if gg is None else Iv(np.where(keep, gg.lo, 0.0), np.where(keep, gg.hi, 0.0)) for gg in chain.g]
+            near = x.v.mig() < x.v.hi - x.v.lo
+            if not near.any():
+                return chain
+            # phi = a x + delta, delta a variable over its range D on the box (a = 0: phi itself)
+            a = np.where(near, secant_slope(x.v, e, op), 0.0)
+            D = affine_remainder(x.v, e, op, a)
+            D = Iv(np.where(a == 0.0, chain.v.lo, D.lo), np.where(a == 0.0, chain.v.hi, D.hi))
+            A = Iv(a)
+            g = [None if gg is None else _rows(near, A * xg, gg) for gg, xg in zip(chain.g, x.g)]
             g[d + slot] = Iv(np.where(near, 1.0, 0.0))
-            phis[slot] = (near, val)
-            # which box coordinates make phi's argument wide (directly and through the phis it
-            # depends on): a split of one of them narrows phi's range, by 2^-e only near its zero
+            phis[slot] = _Split(near, a, D)
+            # which box coordinates make phi's argument wide (directly and through the remainders it
+            # depends on): a split of one of them narrows D, by 2^-e only near its zero
             wid = np.zeros((n, d))
             for jj in range(d):
                 if x.g[jj] is not None:
                     wid[:, jj] = x.g[jj].mag() * (hi[:, jj] - lo[:, jj])
-            for sl, (nr, vl) in phis.items():
+            for sl, var in phis.items():
                 gg = x.g[d + sl]
                 if gg is not None and sl != slot:
-                    wid += through[sl] * np.where(nr, gg.mag() * (vl.hi - vl.lo), 0.0)[:, None]
+                    wid += through[sl] * np.where(var.near, gg.mag() * (var.rng.hi - var.rng.lo), 0.0)[:, None]
             bad = ~np.isfinite(wid).all(axis=1)
             wid[bad] = np.where(np.isfinite(wid[bad]), 0.0, (hi - lo)[bad])
             tot = wid.sum(axis=1, keepdims=True)
             through[slot] = np.where(tot > 0, wid / np.where(tot > 0, tot, 1.0), 0.0)
-            split[slot] = through[slot] * (1.0 if op == "value" else 2.0 * (1.0 - 2.0 ** -e.lo))
-            return Dual(val, g)
+            split[slot] = through[slot] * (2.0 * (1.0 - 2.0 ** -e.lo))
+            return Dual(_rows(near, A * x.v + D, chain.v), g)
 
         zs, j = [], 0
         for i in range(r):
@@ -274,18 +281,25 @@ class _Ratio:
             else:
                 zs.append(Dual(Iv(lo[:, j], hi[:, j]), [Iv(1.0) if jj == j else None for jj in range(d + m)]))
                 j += 1
-        F = self._ratio(*self.t.evaluate(zs, box_factor, lambda sl: phis[sl][0] if sl in phis else None)[:3])
+        F = self._ratio(*self.t.evaluate(zs, box_factor, lambda sl: phis[sl].near if sl in phis else None)[:3])
         return F, phis, split
 
     def at(self, face: int, x, phis):
-        """F at points of the product: x (n, r - 1) box coordinates, phis {slot: (near (n,), value (n,))}
-        the value each variable factor takes where ``near`` (the other factors are computed). An Iv (n,)."""
+        """F at points of the product: x (n, r - 1) box coordinates, phis {slot: (near (n,), slope (n,),
+        value (n,))}: where ``near`` the factor is slope x + value (x its argument), elsewhere it is
+        computed; z_j - v_{j-1} is its plain difference (F's, off the manifold). An Iv (n,)."""
+        off = np.zeros(len(x), dtype=bool)
+        for near, _, _ in phis.values():
+            off |= near
+
         def point_factor(slot, xx, e, op):
-            val = e[0] if op == "value" else xx.sig(e) if op == "sig" else xx.pabs(e)
+            if op == "value":  # on the manifold also the tight enclosure
+                return _rows(off, xx, Iv(np.maximum(xx.lo, e.lo), np.minimum(xx.hi, e.hi)))
+            val = xx.sig(e) if op == "sig" else xx.pabs(e)
             if slot not in phis:
                 return val
-            near, c = phis[slot]
-            return Iv(np.where(near, c, val.lo), np.where(near, c, val.hi))
+            near, a, c = phis[slot]
+            return _rows(near, Iv(a) * xx + c, val)
 
         z = np.insert(x, face, 1.0, axis=1)
         zs = [Iv(z[:, i]) for i in range(self.r)]
@@ -303,30 +317,38 @@ class _Ratio:
         1. The enclosure E1 = Terms.evaluate over the box in intervals. Each quantity is enclosed by
            an interval extension of a formula that holds at every state of the box (the identities
            y_i - S_{i-1} = s_i, z_i = sig(y_i, 1/beta_{i-1}), sig(v_{i-1}, beta_{i-1}) = S_{i-1} of
-           _diff and _W hold at every state: they are the definitions of the recursion). So R(s) is
-           in E1 for every s of the box.
-        2. Near the zero of a factor phi = |x|^e or sig(x, e), e < 1 (a slot of Terms.evaluate; the
-           box "near" when the argument's enclosure comes within its width of 0), dphi/ds is
-           unbounded and no mean-value form in s converges. There phi becomes a variable p of its
-           own over P = its interval range on the box, and F(s, p) is the function that the
-           evaluation computes with p in place of phi (``product``: Terms.evaluate's ``extra`` masks).
-           F is one function on the product X x P of the box X and the ranges: each of its steps is
-           a formula in (s, p) with no identity that needs p = phi(s) — where z_j = p or v_{j-1}
-           contains p, z_j - v_{j-1} in dV1/dt is a variable of its own over its range on the box
-           (that range is enclosed on the manifold, where it is the range of a function of s), and
-           W(z_j, v_{j-1}) is the integral itself with its own partial derivatives
-           (Terms._W: ``offm``); elsewhere z_j, v_{j-1} are functions of s and the identities hold.
-           So the value enclosures of the Dual arithmetic hold on all of X x P, and each gradient
-           rule is the derivative (a Clarke gradient at |x|, Lipschitz) of that step; F is Lipschitz
-           on the convex X x P and its gradient is enclosed there by G (``F.g``).
-        3. F(c) + sum_j sup(G_j (x_j - c_j)) >= F(x) for all x, c in X x P (mean value theorem on the
-           segment from c to x, inside X x P); c is Baumann's centre of each variable, F(c) enclosed
-           by ``at``. Since (s, phi(s)) is in X x P and F(s, phi(s)) = R(s), this bounds R on X.
-        4. E2 = F's value enclosure over X x P (``F.v``), a bound for the same reason.
+           _diff and _W hold at every state: they are the definitions of the recursion; W's floor
+           C_b |z - a|^(b+1) holds for all real z, a: hong_terms._W_floor). V1 > 0 at every state of
+           a face, so 1/V1^alpha lies in [1/hi, inf) of the enclosure of V1^alpha even where its
+           lower end is 0 (Iv.recip_pos). So R(s) is in E1 for every s of the box.
+        2. Near the zero of the argument x of a factor phi = |x|^e or sig(x, e) (a slot of
+           Terms.evaluate, e != 0, 1; the box "near" when the enclosure X of x comes within its width
+           of 0), dphi/dx is unbounded (e < 1) or its enclosure is wide (e > 1). There phi is split
+           affinely: phi = a x + delta, with a float slope a (the secant over X; 0 for |x|^e on an X
+           that holds 0) and delta a variable of its own over D, an enclosure of phi(t) - a t for all
+           t in X (interval.affine_remainder: the extremes of a function continuous on X and
+           differentiable but at 0 lie at the ends, at 0 or where phi' = a). F(s, d) is the function
+           that the evaluation computes with a x + d in place of phi (``product``: Terms.evaluate's
+           ``extra`` masks), one function on the product X x D of the box and the ranges: each of its
+           steps is a formula in (s, d) with no identity that needs d = delta(s) — where z_j,
+           v_{j-1} or S_{j-1} holds a split factor, the enclosures of z_j - v_{j-1} and of
+           sig(z_j, b) - sig(v_{j-1}, b) that the identities give on the manifold (d = delta(s)) are
+           widened by sum_k max|dq/dd_k| width(D_k) (mean value theorem in d on the segment from
+           (s, delta(s)) to (s, d), inside the product; ``_widened``), and W(z_j, v_{j-1}) is the
+           integral itself with its own partial derivatives (Terms._W: ``offm``); elsewhere those
+           quantities are functions of s and the identities hold. So the value enclosures of the
+           Dual arithmetic hold on all of X x D, and each gradient rule is the derivative (a Clarke
+           gradient at |x|, Lipschitz) of that step; F is Lipschitz on the convex X x D and its
+           gradient is enclosed there by G (``F.g``).
+        3. F(c) + sum_j sup(G_j (x_j - c_j)) >= F(x) for all x, c in X x D (mean value theorem on the
+           segment from c to x, inside X x D); c is Baumann's centre of each variable, F(c) enclosed
+           by ``at``. Since (s, delta(s)) is in X x D and F(s, delta(s)) = R(s), this bounds R on X.
+        4. E2 = F's value enclosure over X x D (``F.v``), a bound for the same reason.
         The split rule and the centres change only the speed.
-        tests/test_control_certificate.py checks steps 2-3 against F at random points of X x P off
-        the manifold (the rule that preceded this one, W's gradient s dz - (z - a) dS and the tight
-        z - a taken off the manifold, fails it).
+        tests/test_control_certificate.py checks steps 2-3 against F at random points of X x D off
+        the manifold (the manifold's identities taken off it fail it, and so does F with slopes 10 %
+        off its gradient's); tests/test_interval_soundness.py checks D against mpmath at the exact
+        extrema of phi(t) - a t.
         """
         d, r = self.r - 1, self.r
         n = len(lo)
@@ -343,9 +365,9 @@ class _Ratio:
                 if F.g[jj] is not None:
                     cb[:, jj] = _baumann(F.g[jj], lo[:, jj], hi[:, jj], mid[:, jj])
             centres = {}
-            for slot, (near, val) in phis.items():
+            for slot, (near, a, val) in phis.items():
                 g, c = F.g[d + slot], 0.5 * (val.lo + val.hi)
-                centres[slot] = (near, c if g is None else _baumann(g, val.lo, val.hi, c))
+                centres[slot] = (near, a, c if g is None else _baumann(g, val.lo, val.hi, c))
             mv = self.at(face, cb, centres).hi.copy()
             score = np.zeros((n, d))
             for jj, g in enumerate(F.g):
@@ -355,8 +377,8 @@ class _Ratio:
                     term = _term(g, lo[:, jj], hi[:, jj], cb[:, jj])
                     score[:, jj] += g.mag() * (hi[:, jj] - lo[:, jj])  # the midpoint form's term (x2)
                 elif jj - d in phis:
-                    val = phis[jj - d][1]
-                    term = _term(g, val.lo, val.hi, centres[jj - d][1])
+                    val = phis[jj - d].rng
+                    term = _term(g, val.lo, val.hi, centres[jj - d][2])
                     w = g.mag() * (val.hi - val.lo)
                     score += share[jj - d] * np.where(np.isfinite(w), w, 0.0)[:, None]
                 else:
@@ -364,8 +386,8 @@ class _Ratio:
                 mv = _up(mv + term)
             vhi = F.v.hi.copy()
             near = np.zeros(n, dtype=bool)
-            for nr, _ in phis.values():
-                near |= nr
+            for var in phis.values():
+                near |= var.near
             if near.any():  # E1 there (elsewhere F = R, E1 = E2)
                 sel = np.nonzero(near)[0]
                 box = np.insert(np.stack([lo[sel], hi[sel]], axis=-1), face, 1.0, axis=1)
@@ -380,6 +402,34 @@ class _Ratio:
         split = np.where(plain, np.argmax(rad, axis=1), np.argmax(np.where(np.isfinite(score), score, 0.0), axis=1))
         lb = np.where(np.isnan(Rc.lo), -np.inf, Rc.lo)
         return ub, split, lb, zc
+
+
+class _Split(NamedTuple):
+    """A factor phi split affinely on some boxes: phi = slope x + delta, delta a variable over rng."""
+
+    near: np.ndarray  # (n,) bool: the boxes where it is split
+    slope: np.ndarray  # (n,) float: a (0 elsewhere)
+    rng: Iv  # (n,): D, the range of phi(x) - a x over the box
+
+
+def _rows(mask, a: Iv, b: Iv) -> Iv:
+    """a where mask, b elsewhere (Iv of one shape)."""
+    return Iv(np.where(mask, a.lo, b.lo), np.where(mask, a.hi, b.hi))
+
+
+def _widened(val: Iv, x: Dual, phis, d: int) -> Iv:
+    """An enclosure over the product of z_j - v_{j-1} = x: val encloses it on the manifold (delta =
+    delta(s)), and moving the remainders from there changes it by at most sum_k max|dx/d delta_k|
+    width(D_k) (mean value theorem in delta, on the segment inside the product); intersected with x's
+    own enclosure. Outward-rounded; x's where that sum is not finite."""
+    dev = np.zeros(np.shape(val.lo))
+    with np.errstate(invalid="ignore"):
+        for sl, var in phis.items():
+            gg = x.g[d + sl]
+            if gg is not None:
+                term = np.where(var.near, _up(gg.mag() * _up(var.rng.hi - var.rng.lo)), 0.0)
+                dev = _up(dev + np.where(np.isnan(term), np.inf, term))
+    return Iv(np.maximum(_dn(val.lo - dev), x.v.lo), np.minimum(_up(val.hi + dev), x.v.hi))
 
 
 def _baumann(g, lo, hi, mid):

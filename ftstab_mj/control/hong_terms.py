@@ -56,6 +56,7 @@ class Terms:
         self.beta_p1 = [exp_of(b + 1) for b in beta]
         self.inv_beta_p1 = [exp_of(1 / (b + 1)) for b in beta]
         self.inv_beta = [exp_of(1 / b) for b in beta]
+        self.W_floor = [_W_floor(e, em1) for e, em1 in zip(self.beta, self.beta_m1)]
         self.one_m_inv_beta = [exp_of(1 - 1 / b) for b in beta]
         self.one_p_inv_beta = [exp_of(1 + 1 / b) for b in beta]
         self.e = {i: exp_of((1 + i * F) / (1 - (i - 2) * F)) for i in range(1, r + 1)}  # e_1 = 1
@@ -94,7 +95,7 @@ class Terms:
             y[i - 1] = s[i - 1] + S[i - 1]
             z[i - 1] = f(SLOTS * (i - 2) + 3, y[i - 1], self.inv_beta[i - 1], "sig")
             if i <= r - 1:
-                S[i] = -(C(self.lb[i]) * _sig(s[i - 1], self.q[i]))
+                S[i] = -(C(self.lb[i]) * f(SLOTS * (i - 2) + 5, s[i - 1], self.q[i], "sig"))
         return z, y, S
 
     def s_of(self, z):
@@ -116,11 +117,12 @@ class Terms:
         factor(slot, x, e, op) -> |x|^e (op "pabs") or sig(x, e) (op "sig"), if given, computes the
         powers whose exponent is < 1 (Hoelder but not Lipschitz where x = 0), slot
         SLOTS * (i - 2) + j for i = 2..r: j = 0 |y_i|^(1 - 1/beta_{i-1}), 1 |s_i|^(q_i - 1),
-        2 sig(s_i, e_i) (in v_i), 3 z_i = sig(y_i, 1/beta_{i-1}); and 4 z_i - v_{i-1} (op "value",
-        see _diff). The B&B treats them as variables of their own near their singularity (certificate.py).
+        2 sig(s_i, e_i) (in v_i), 3 z_i = sig(y_i, 1/beta_{i-1}), 5 sig(s_i, q_i) (in S_i, i <= r - 1);
+        and 4 z_i - v_{i-1} (op "value", see _diff). The B&B splits the powers affinely near the zero
+        of their argument, phi = a x + delta with delta a variable of its own (certificate.py).
 
-        extra(slot) -> the boolean mask of the boxes where ``factor`` made that slot's quantity a
-        variable of its own (or None). There the evaluation is of a function F(s, phi) on the product
+        extra(slot) -> the boolean mask of the boxes where ``factor`` made that slot's quantity depend
+        on a variable of its own (or None). There the evaluation is of a function F(s, phi) on the product
         of the box and the phi ranges, off whose manifold phi = phi(s) the identities S = sig(v, beta),
         y - S = s fail: _diff and _W then use only enclosures and derivatives that hold for any z and
         v (the mean-value form of F needs its gradient on the whole product). Without ``extra`` the
@@ -148,15 +150,16 @@ class Terms:
         V = _pabs(s[0], self.one_p_inv_beta[0]) * C(self.inv_beta_p1[0])
         dV = s[0] * zdot[0]
         for j in range(2, r + 1):
-            # z_j and v_{j-1} are functions of s unless their own factor (slots 3 of j, 2 of j - 1) is a variable
+            # z_j, v_{j-1} and S_{j-1} are functions of s unless their own factor (slots 3 of j, 2 and 5
+            # of j - 1) holds a variable
             offm = None
             if extra is not None:
-                masks = [m for m in (extra(SLOTS * (j - 2) + 3), extra(SLOTS * (j - 3) + 2) if j >= 3 else None)
-                         if m is not None]
+                own = [SLOTS * (j - 2) + 3] + ([SLOTS * (j - 3) + 2, SLOTS * (j - 3) + 5] if j >= 3 else [])
+                masks = [m for m in (extra(sl) for sl in own) if m is not None]
                 offm = np.logical_or.reduce(masks) if masks else None
             diff, true_diff = self._diff(z[j - 1], v[j - 1], y[j - 1], S[j - 1], s[j - 1], j - 1, fl, f,
-                                         SLOTS * (j - 2) + 4, offm)
-            V = V + self._W(z[j - 1], v[j - 1], S[j - 1], s[j - 1], true_diff, j - 1, fl, offm)
+                                         SLOTS * (j - 2) + 4)
+            V = V + self._W(z[j - 1], v[j - 1], S[j - 1], s[j - 1], true_diff, j - 1, fl, offm, f, SLOTS * (j - 2) + 4)
             dV = dV + s[j - 1] * zdot[j - 1] - diff * D[j - 1]
         return V, dV, s[r - 1], u0
 
@@ -165,19 +168,17 @@ class Terms:
         s = self.s_of(z)
         return self.evaluate([s[:, i] for i in range(self.r)])
 
-    def _diff(self, z, a, y, S, s, b_index, fl, f, slot, offm=None):
+    def _diff(self, z, a, y, S, s, b_index, fl, f, slot):
         """z_j - v_{j-1} = sig(y, rho) - sig(S, rho) with rho = 1/beta_{j-1} <= 1 and y - S = s.
 
         Enclosed by the intersection of: the plain difference z - a; s times the mean of
         rho |xi|^(rho-1) over xi between S and y (exactly s at k = 0); and, since sig(., rho) is
         increasing and Hoelder, a value of the sign of s with modulus <= 2^(1-rho) |s|^rho. These
         identities hold where z = sig(y, rho) and a = sig(S, rho), i.e. at every state (the manifold
-        phi = phi(s)), and off it wherever neither z nor a contains a variable factor. Where ``offm``
-        (z or a a variable of its own, so z - a off the manifold is not in that enclosure) the
-        difference is handed to ``f`` as a variable of its own too, over the enclosure (its range on
-        the manifold). Handed to ``f`` as slot ``slot`` (op "value") with the mask of boxes near its
-        singularity (or offm). Returns (f's result for dV1/dt, the enclosure of z - a itself for W:
-        the plain difference where offm).
+        phi = phi(s)), and off it wherever none of z, a, S holds a variable factor. Handed to ``f`` as
+        slot ``slot`` (op "value": the plain difference and that enclosure; the B&B widens it by how
+        far its variables can move z - a off the manifold). Returns (f's result for dV1/dt, its
+        enclosure of z - a, for W).
         """
         plain = z - a
         if fl:
@@ -191,24 +192,19 @@ class Terms:
         if rho.lo < 1.0:
             h = sv.sig(rho) * Iv(2.0).pabs(Exp.of(1.0 - rho.iv()))
             lo, hi = np.maximum(lo, np.minimum(h.lo, 0.0)), np.minimum(hi, np.maximum(h.hi, 0.0))
-        val = Iv(lo, hi)
-        # singular only where y or S reaches 0 (the derivatives rho |.|^(rho - 1) of the plain
-        # difference): boxes whose y and S have opposite signs but stay away from 0 keep its gradient
-        yv, Sv = _val(y), _val(S)
-        near = ((yv.mig() < yv.hi - yv.lo) | (Sv.mig() < Sv.hi - Sv.lo)) if rho.lo < 1.0 else np.zeros(np.shape(lo), dtype=bool)
-        if offm is None:
-            return f(slot, plain, (val, near), "value"), val
-        # where z or a is a variable of its own, z - a is too (over val, which holds z(s) - a(s)):
-        # W(z, a) is then the integral of its own two arguments and needs their plain difference
-        return f(slot, plain, (val, near | offm), "value"), Iv(np.where(offm, v.lo, lo), np.where(offm, v.hi, hi))
+        res = f(slot, plain, Iv(lo, hi), "value")
+        return res, _val(res)
 
-    def _W(self, z, a, S, s, diff, b_index, fl, offm=None):
+    def _W(self, z, a, S, s, diff, b_index, fl, offm=None, f=None, slot=None):
         """W(z, a, beta_b) with S = sig(a, beta_b), s = sig(z, beta_b) - S (its dW/dz), diff = z - a.
 
         W = (z - a)^2 / 2 times the mean of b |xi|^(b-1) over xi between a and z (b >= 1 here,
-        so that factor is bounded by its values at the ends of the hull of a and z).
+        so that factor is bounded by its values at the ends of the hull of a and z); and, for any z, a,
+        W >= C_b |z - a|^(b+1) (``W_floor``: the bound that stays positive where the hull holds 0).
         Where ``offm``, z and a are independent: the gradient is W's own, dW = (sig(z, b) - sig(a, b)) dz
-        - (z - a) b |a|^(b-1) da, in place of s dz - (z - a) dS (which needs S = sig(a, b), s = y - S)."""
+        - (z - a) b |a|^(b-1) da, in place of s dz - (z - a) dS (which needs S = sig(a, b), s = y - S);
+        sig(z, b) - sig(a, b), which is s on the manifold, is enclosed by ``f`` as slot ``slot`` (op
+        "value", as z - a in _diff)."""
         if fl:
             return (np.abs(z) ** self.beta_p1[b_index].mid - a * S) * self.inv_beta_p1[b_index].mid - S * (z - a)
         b = self.beta[b_index]
@@ -219,7 +215,8 @@ class Terms:
             hull = _val(z).hull(_val(a))
             mean = _val(diff).sq() * (b.iv() * hull.pabs(self.beta_m1[b_index])) * 0.5
             corners = _W_corners(_val(z), _val(a), b, self.beta_p1[b_index], self.inv_beta_p1[b_index])
-            val = Iv(np.maximum(np.maximum(mean.lo, corners.lo), 0.0), np.minimum(mean.hi, corners.hi))
+            floor = (self.W_floor[b_index] * Iv(_val(diff).mig()).pabs(self.beta_p1[b_index])).lo
+            val = Iv(np.maximum(np.maximum(np.maximum(mean.lo, corners.lo), floor), 0.0), np.minimum(mean.hi, corners.hi))
         if not isinstance(z, Dual) and not isinstance(S, Dual):
             return val
         d = len((z if isinstance(z, Dual) else S).g)
@@ -231,8 +228,8 @@ class Terms:
              (-(dv * gS) if gz is None else sv * gz - dv * gS) for gz, gS in zip(zg, Sg)]
         if offm is not None and offm.any():
             ag = a.g if isinstance(a, Dual) else [None] * d
-            zv, av = _val(z), _val(a)
-            dz = zv.sig(b) - av.sig(b)
+            av = _val(a)
+            dz = _val(f(slot, _sig(z, b) - _sig(a, b), sv, "value"))
             da = -(dv * (b.iv() * av.pabs(self.beta_m1[b_index])))
             own = [_gadd(None if gz is None else dz * gz, None if ga is None else da * ga) for gz, ga in zip(zg, ag)]
             g = [_pick(offm, go, gm) for go, gm in zip(own, g)]
@@ -246,6 +243,22 @@ def _pick(mask, a, b):
     a = Iv(0.0) if a is None else a
     b = Iv(0.0) if b is None else b
     return Iv(np.where(mask, a.lo, b.lo), np.where(mask, a.hi, b.hi))
+
+
+def _W_floor(b: Exp, bm1: Exp) -> Iv:
+    """A point interval C_b <= W(z, a) / |z - a|^(b+1) for all real z != a and every exponent in b > 1.
+
+    For z > a, L = z - a (z < a is the mirror image: sig is odd), W = integral_a^z (z - xi) b |xi|^(b-1) dxi.
+    For t in (0, L/2] the xi with |xi| < t fill a length <= 2t, over which the weight z - xi integrates
+    to at most its integral over [a, a + 2t], 2tL - 2t^2; elsewhere |xi|^(b-1) >= t^(b-1). So
+    W >= b t^(b-1) (L - 2t)^2 / 2, i.e. C_b = (b/2) tau^(b-1) (1 - 2 tau)^2 with t = tau L, any tau in
+    (0, 1/2); tau = (b-1)/(4 + 2(b-1)) maximises it (C_b -> 1/2 as b -> 1, the k = 0 value).
+    0 where b is not > 1 (no floor)."""
+    if not b.lo > 1.0:
+        return Iv(0.0)
+    tau = (b.mid - 1.0) / (4.0 + 2.0 * (b.mid - 1.0))
+    c = b.iv() * 0.5 * Iv(tau).pabs(bm1) * (Iv(1.0) - Iv(2.0) * Iv(tau)).sq()
+    return Iv(max(float(c.lo), 0.0))
 
 
 def _W_corners(z: Iv, a: Iv, b, bp1, inv_bp1) -> Iv:
@@ -272,13 +285,13 @@ def _val(x) -> Iv:
     return x.v if isinstance(x, Dual) else Iv.lift(x)
 
 
-SLOTS = 5  # quantities per level i that Terms.evaluate hands to its ``factor`` argument
+SLOTS = 6  # quantities per level i that Terms.evaluate hands to its ``factor`` argument
 
 
 def _power(slot, x, e, op: str):
-    """The default ``factor`` of Terms.evaluate: the power itself (op "value": e = (enclosure, mask))."""
+    """The default ``factor`` of Terms.evaluate: the power itself (op "value": e the enclosure)."""
     if op == "value":
-        return Dual(e[0], x.g) if isinstance(x, Dual) else e[0]
+        return Dual(e, x.g) if isinstance(x, Dual) else e
     return _sig(x, e) if op == "sig" else _pabs(x, e)
 
 

@@ -181,6 +181,14 @@ class Iv:
     def __truediv__(self, o):
         return self * Iv.lift(o).recip()
 
+    def recip_pos(self):
+        """1 / x for a quantity known to be > 0 whose enclosure may reach down to 0 or below (a loose
+        lower bound): [1/hi, 1/lo], or [1/hi, inf] where lo <= 0 ([0, inf] where hi <= 0)."""
+        with np.errstate(divide="ignore"):
+            lo = np.where(self.hi > 0, _dn(1.0 / np.where(self.hi > 0, self.hi, 1.0)), 0.0)
+            hi = np.where(self.lo > 0, _up(1.0 / np.where(self.lo > 0, self.lo, 1.0)), _INF)
+        return Iv(lo, hi)
+
     def abs(self):
         return Iv(self.mig(), self.mag())
 
@@ -278,6 +286,10 @@ class Dual:
     def __truediv__(self, o):
         return self * (o.recip() if isinstance(o, Dual) else Iv.lift(o).recip())
 
+    def recip_pos(self):
+        r = self.v.recip_pos()
+        return self._chain(r, -(r * r))
+
     def abs(self):
         return self._chain(self.v.abs(), self.v.sign())
 
@@ -311,3 +323,58 @@ def _gadd(a, b):
     if b is None:
         return a
     return a + b
+
+
+def secant_slope(x: Iv, e: Exp, op: str):
+    """The slope (phi(hi) - phi(lo)) / (hi - lo) of phi = sig(., e) (op "sig") or |.|^e (op "pabs")
+    over each interval of x, in floats at e.mid; 0 where it is not a finite number (a point or an
+    unbounded interval) and, for |.|^e, where the interval holds 0 (phi is not monotone there: a
+    free variable, slope 0, serves as well). Any float is a valid slope for affine_remainder."""
+    lo, hi = x.lo, x.hi
+    with np.errstate(all="ignore"):
+        if op == "sig":
+            f_lo, f_hi = np.copysign(np.abs(lo) ** e.mid, lo), np.copysign(np.abs(hi) ** e.mid, hi)
+        else:
+            f_lo, f_hi = np.abs(lo) ** e.mid, np.abs(hi) ** e.mid
+        a = (f_hi - f_lo) / (hi - lo)
+    ok = np.isfinite(a) & (hi > lo)
+    if op != "sig":
+        ok &= (lo > 0) | (hi < 0)
+    return np.where(ok, a, 0.0)
+
+
+def affine_remainder(x: Iv, e: Exp, op: str, a) -> Iv:
+    """An enclosure D of delta(t) = phi_p(t) - a t over every t in each interval of x and every
+    exponent p in e: phi_p = sig(., p) (op "sig") or |.|^p (op "pabs"), p > 0 and e on one side of 1;
+    a a float array (any slope). delta is continuous on [lo, hi] and differentiable but at t = 0, so
+    its extremes lie at lo, hi, 0 or a stationary point, phi_p'(t) = a: |t| = (|a| / p)^(1/(p - 1))
+    (for sig both signs, a > 0; for |.|^p the sign of a). D is the hull of delta's interval
+    evaluation at the two ends, at 0 where inside, and over the enclosure of each stationary point
+    (for all p in e) intersected with [lo, hi]."""
+    if not (e.lo > 0 and (e.hi < 1.0 or e.lo > 1.0)):
+        raise ValueError(f"affine_remainder needs an exponent in (0, 1) or (1, inf), got [{e.lo}, {e.hi}]")
+    A = Iv(np.asarray(a, dtype=float))
+    phi = (lambda t: t.sig(e)) if op == "sig" else (lambda t: t.pabs(e))
+
+    def delta(t: Iv) -> Iv:
+        return phi(t) - A * t
+
+    with np.errstate(all="ignore"):
+        D = delta(Iv(x.lo)).hull(delta(Iv(x.hi)))
+        zero = (x.lo < 0) & (x.hi > 0)
+        D = _hull_where(D, delta(Iv(np.zeros_like(x.lo))), zero)
+        E = e.iv()
+        power = Iv(1.0) / (E - 1.0)  # 1/(p - 1) for every p in e (one sign: e is on one side of 1)
+        t = (Iv(np.abs(A.lo)) / E).pabs(Exp(float(power.lo), float(power.hi)))
+        for sign, has in ((1.0, A.lo > 0), (-1.0, (A.lo > 0) if op == "sig" else (A.lo < 0))):
+            tlo, thi = (t.lo, t.hi) if sign > 0 else (-t.hi, -t.lo)
+            clo, chi = np.maximum(tlo, x.lo), np.minimum(thi, x.hi)
+            inside = has & (clo <= chi) & np.isfinite(clo) & np.isfinite(chi)
+            if inside.any():
+                D = _hull_where(D, delta(Iv(np.where(inside, clo, 0.0), np.where(inside, chi, 0.0))), inside)
+    return _clean(D.lo, D.hi)
+
+
+def _hull_where(a: Iv, b: Iv, mask) -> Iv:
+    """The hull of a and b where mask, a elsewhere."""
+    return Iv(np.where(mask, np.minimum(a.lo, b.lo), a.lo), np.where(mask, np.maximum(a.hi, b.hi), a.hi))
