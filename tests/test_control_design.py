@@ -135,10 +135,23 @@ def test_shipped_ideal_chain_gains_beat_the_bound_from_100_random_states(name):
     print(f"{name}: settle / T(z0) <= {float(np.max(settle / T)):.3g}, T(z0) in [{T.min():.4g}, {T.max():.4g}] s")
 
 
-def test_cli_design_prints_gains_and_snippet():
+def test_cli_design_prints_gains_and_a_snippet_that_runs(tmp_path):
+    """The printed scenario snippet, pasted under [loops.chain.controller] of an ideal-chain scenario,
+    runs with `ftstab run`: the run's own certificate of those gains is the printed one (certified,
+    the same c_lower to its 6 digits) and the run settles before its guaranteed T(z0)."""
     res = run_cli("design", "--r", 2, "--k", -0.2)
     assert res.returncode == 0, res.stderr
     assert "status: certified" in res.stdout and "gains = [" in res.stdout
+    head, snippet = res.stdout.split("scenario snippet ([loops.<name>.controller]):\n")
+    c_printed = float(head.split("c       = ")[1].split()[0])
+    scenario = tmp_path / "designed.toml"
+    scenario.write_text('name = "designed"\ndescription = "designed gains"\n[plant]\nmodel = "ideal_chain"\nr = 2\n[sim]\nduration = 6.0\n'
+                        '[loops.chain]\nz0 = [1.0, 0.0]\n[loops.chain.controller]\nlaw = "nominal"\n' + snippet)
+    run = run_cli("run", scenario, "--out", tmp_path / "runs", "--json")
+    assert run.returncode == 0, run.stderr
+    m = json.loads(run.stdout)["loops"]["chain"]
+    assert m["certificate"]["status"] == "certified" and float(f"{m['certificate']['c_lower']:.6g}") == c_printed
+    assert m["settle_time"] < m["time_bound"] and m["beat_bound"] is True, m
 
 
 def test_cli_design_uncertified_prints_no_snippet():

@@ -86,6 +86,17 @@ def test_chain_mode_refuses_a_plant_without_an_exact_chain_twin(tmp_path):
     assert not (tmp_path / "o").exists()
 
 
+def _rerun_gives_the_worst_case(tmp_path, scenario, loop, duration, worst):
+    """`ftstab run SCENARIO` from the Monte Carlo's worst z0: the same z0, settling time and T(z0)."""
+    z0 = "[" + ", ".join(repr(x) for x in worst["z0"]) + "]"
+    rerun = run_cli("run", scenario, "--set", f"sim.duration={duration}", "--set", f"loops.{loop}.z0={z0}",
+                    "--out", tmp_path / "runs", "--json")
+    assert rerun.returncode == 0, rerun.stderr
+    m = json.loads(rerun.stdout)["loops"][loop]
+    assert m["z0"] == worst["z0"] and m["settle_time"] == worst["settle_time"]
+    assert m["time_bound"] == worst["time_bound"]
+
+
 def test_plant_worst_case_rerun_with_ftstab_run_gives_the_same_settling_time(tmp_path):
     out = tmp_path / "mc"
     res = run_cli("montecarlo", "cart_r2_robust", "--on", "plant", "--states", "5", "--box", "1,1", "--seed", "4",
@@ -96,32 +107,17 @@ def test_plant_worst_case_rerun_with_ftstab_run_gives_the_same_settling_time(tmp
     assert (out / "montecarlo.png").stat().st_size > 0 and summary["states"] == 5
     # cart_r2_robust runs within its assumed bounds: Theorem 2 applies and no state may exceed T(z0)
     assert summary["bound_applies"] is True and summary["violations"] == 0
-    worst = summary["worst"]
-    z0 = "[" + ", ".join(repr(x) for x in worst["z0"]) + "]"
-    rerun = run_cli("run", "cart_r2_robust", "--set", "sim.duration=4", "--set", f"loops.cart.z0={z0}",
-                    "--out", tmp_path / "runs", "--json")
-    assert rerun.returncode == 0, rerun.stderr
-    m = json.loads(rerun.stdout)["loops"]["cart"]
-    assert m["z0"] == worst["z0"] and m["settle_time"] == worst["settle_time"]
-    assert m["time_bound"] == worst["time_bound"]
+    _rerun_gives_the_worst_case(tmp_path, "cart_r2_robust", "cart", 4, summary["worst"])
 
 
 def test_chain_mode_on_an_ideal_chain_scenario_and_its_worst_case_rerun_with_ftstab_run(tmp_path):
     """An ideal-chain scenario is its own exact twin: `--on chain` runs it on the native kernel, and
     the worst case's z0 rerun with `ftstab run` (the ideal-chain plant, the Python loop) gives the
     same settling time and T(z0) (r = 4, the robust law inside its bounds: no state beyond its bound)."""
-    out = tmp_path / "mc"
     res = run_cli("montecarlo", "ideal_chain_r4", "--states", "20", "--box", "1,1,1,1", "--set", "sim.duration=8",
-                  "--out", out, "--json")
+                  "--out", tmp_path / "mc", "--json")
     assert res.returncode == 0, res.stderr
     summary = json.loads(res.stdout)
     assert summary["states"] == summary["settled"] == 20 and summary["bound_applies"] is True
     assert summary["violations"] == 0
-    worst = summary["worst"]
-    z0 = "[" + ", ".join(repr(x) for x in worst["z0"]) + "]"
-    rerun = run_cli("run", "ideal_chain_r4", "--set", "sim.duration=8", "--set", f"loops.chain.z0={z0}",
-                    "--out", tmp_path / "runs", "--json")
-    assert rerun.returncode == 0, rerun.stderr
-    m = json.loads(rerun.stdout)["loops"]["chain"]
-    assert m["z0"] == worst["z0"] and m["settle_time"] == worst["settle_time"]
-    assert m["time_bound"] == worst["time_bound"]
+    _rerun_gives_the_worst_case(tmp_path, "ideal_chain_r4", "chain", 8, summary["worst"])
