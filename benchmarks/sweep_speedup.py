@@ -213,16 +213,20 @@ def fixed_costs(folder: Path, sweep: Path, journal: Path, env: dict) -> dict[str
             for k, (name, _, _) in enumerate(runs[0])}
 
 
-def best_speedup(fixed: float, beside: float, extra: float, rows: float) -> float:
+def best_speedup(fixed: float, beside: float, extra: float, rows: int, per_row: float, check: float) -> float:
     """Serial's wall over 2 workers' at best (Amdahl): ``fixed`` s of the command that does not split, of which
     ``beside`` s runs beside the workers (sharing the cores with them), ``extra`` s the engine adds to the
-    command (Dask: ``import distributed``; its cluster's start and per-row costs taken as free), ``rows`` s of rows."""
-    return (fixed + rows) / (fixed - beside + extra + (rows + beside) / 2)
+    command (Dask: ``import distributed``; its cluster's start and per-row costs taken as free), and ``rows``
+    rows of ``per_row`` s each, each validated first by the command itself (``check`` s a row, serial)."""
+    return (fixed + rows * (per_row + check)) / (fixed - beside + extra + rows * check + (rows * per_row + beside) / 2)
 
 
-def rows_for(target: float, fixed: float, beside: float, extra: float, per_row: float) -> float:
-    """The rows of ``per_row`` s from which :func:`best_speedup` reaches ``target`` (< 2)."""
-    return max(0.0, (target * (fixed - beside / 2 + extra) - fixed) / (per_row * (1 - target / 2)))
+def rows_for(target: float, fixed: float, beside: float, extra: float, per_row: float, check: float) -> float:
+    """The rows from which :func:`best_speedup` reaches ``target`` (inf where it never does: the rows'
+    validation, serial, caps it at (per_row + check) / (per_row / 2 + check))."""
+    gain = per_row * (1 - target / 2) - check * (target - 1)
+    need = target * (fixed - beside / 2 + extra) - fixed
+    return max(0.0, need / gain) if gain > 0 else float("inf")
 
 
 def start_external(folder: Path, env: dict):
@@ -331,18 +335,19 @@ def main():
             print(f"fixed costs of the command, fresh process, median of 3 (load: {os.getloadavg()[0]:.2f}):")
             for name, (cpu, wall) in phases.items():
                 print(f"  {name:<24} {cpu:6.3f} s CPU {wall:6.3f} s wall")
-            fixed = sum(phases[k][0] for k in ("interpreter", "imports", "load, expand, prepare",
-                                                "import the table writer", "write the table"))
+            # a row's validation: prepare() validates the base scenario and every row (the files' reading: ~1 ms)
+            check = phases["load, expand, prepare"][0] / (args.samples + 1)
+            fixed = sum(phases[k][0] for k in ("interpreter", "imports", "import the table writer", "write the table"))
             per_row = costs["prepared"][0] / 1e3
             beside = phases["import the table writer"][0]  # made while the workers run (engine.execute's meanwhile)
-            print(f"  serial = {fixed:.2f} s fixed + {args.samples * per_row:.2f} s of rows; 2 workers started for free, "
-                  f"splitting the rows evenly, the table writer's import ({beside:.3f} s) run beside them:")
+            print(f"  serial = {fixed:.2f} s fixed + {args.samples} x ({check * 1e3:.2f} ms validated + {per_row * 1e3:.2f} ms "
+                  f"run); 2 workers started for free, the runs split evenly, the table writer's import ({beside:.3f} s) "
+                  f"beside them, the validation serial:")
             for name, extra in (("processes", 0.0), ("dask", phases["import distributed"][0])):
-                best = best_speedup(fixed, beside, extra, args.samples * per_row)
+                bound = [best_speedup(fixed, beside, extra, n, per_row, check) for n in (args.samples, 1000, 2000)]
                 print(f"    {name:<9} + {extra:.2f} s ({'nothing' if not extra else 'import distributed'}) give at best "
-                      f"{best:.2f}x; 1.6x from {rows_for(1.6, fixed, beside, extra, per_row):.0f} rows of this size "
-                      f"(x{best_speedup(fixed, beside, extra, 1000 * per_row):.2f} at 1000, "
-                      f"x{best_speedup(fixed, beside, extra, 2000 * per_row):.2f} at 2000)", flush=True)
+                      f"{bound[0]:.2f}x; 1.6x from {rows_for(1.6, fixed, beside, extra, per_row, check):.0f} rows of this "
+                      f"size (x{bound[1]:.2f} at 1000, x{bound[2]:.2f} at 2000)", flush=True)
         configs = {
             "serial": ("--workers", "1"),
             "dask, 2 workers": ("--engine", "dask", "--workers", "2"),
