@@ -28,9 +28,11 @@ so its extra threads add no speed (start workers with ``--nthreads 1 --nworkers 
 Rows travel in chunks (:func:`chunks`): one engine task runs several rows one after the other, so the
 engine's cost per task (pickling, scheduling, a round trip: ~1 ms on processes, several ms on Dask)
 is paid once per chunk, not once per row; results still come back per row. Chunks shrink as the
-sweep goes (large first, MIN_CHUNK rows last), so the workers run out of rows together: with equal
-chunks, a worker that finished early waited for a whole chunk of the other's (measured up to 0.3 s
-of one worker idle at the end of 200 rows of 1 s on 2 processes, load 3). A chunk is the unit of
+sweep goes (large first, MIN_CHUNK rows last, then one row per worker where fewer rows are left than
+MIN_CHUNK per worker), so the workers run out of rows together: with equal chunks, a worker that
+finished early waited for a whole chunk of the other's (measured up to 0.3 s of one worker idle at the
+end of 200 rows of 1 s on 2 processes, load 3); and a few long rows are never two to a chunk while a
+worker has none (2 rows on 2 workers ran one after the other). A chunk is the unit of
 loss: when a worker dies, every row of its chunk is lost (and retried by a resume). A worker that
 does not share this process's memory (spawned, Dask) gets the task as ``task.carrying(indices)``
 where the task has that method: what this process prepared for the chunk's rows travels with it
@@ -54,7 +56,7 @@ from ftstab_mj.records import FAILED
 
 ENGINES = ("serial", "processes", "dask")
 GUIDED = 2  # a chunk holds about 1 / (GUIDED x workers) of the rows not yet handed out (guided scheduling)
-MIN_CHUNK = 2  # rows per task at least (but the last): the sweep's end waits for at most this many rows of one worker
+MIN_CHUNK = 2  # rows per task at least, unless a worker would be left without a task (chunks())
 MAX_CHUNK = 32  # rows per task at most: a lost chunk (dead worker) costs a resume at most this many rows
 # a local cluster's worker not up within this (s) fails the start, which LocalCluster would otherwise wait
 # for without end (a worker process stopped while starting kept `ftstab sweep` waiting, silent, 605 s)
@@ -107,11 +109,14 @@ def carrying(task, chunk: list[tuple[int, tuple]]):
 
 def chunks(items: list, workers: int) -> list[list]:
     """``items`` cut into consecutive chunks of decreasing size, in the order the workers should take them:
-    each about 1 / (GUIDED x workers) of the rows left, within [MIN_CHUNK, MAX_CHUNK] (the last one may be
-    smaller). 199 rows on 2 workers: 32, 32, 32, 26, 20, 15, 11, 8, 6, 5, 3, 3, 2, 2, 2 (15 tasks)."""
-    out, k = [], 0
+    each about 1 / (GUIDED x workers) of the rows left, within [MIN_CHUNK, MAX_CHUNK], and never more than
+    1 / workers of them (so that, rows of equal cost taken by the first free worker, the sweep ends after
+    ceil(rows / workers) rows' time: no worker idles while another has a chunk of two rows to go).
+    199 rows on 2 workers: 32, 32, 32, 26, 20, 15, 11, 8, 6, 5, 3, 3, 2, 2, 1, 1 (16 tasks); 2 rows: 1, 1."""
+    out, k, w = [], 0, max(1, workers)
     while k < len(items):
-        size = max(MIN_CHUNK, min(MAX_CHUNK, -(-(len(items) - k) // (GUIDED * max(1, workers)))))
+        left = len(items) - k
+        size = min(max(MIN_CHUNK, min(MAX_CHUNK, -(-left // (GUIDED * w)))), -(-left // w))
         out.append(items[k:k + size])
         k += size
     return out
