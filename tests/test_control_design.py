@@ -14,7 +14,7 @@ from ftstab_mj.control.design import default_gain_max, design, linear_c, nelder_
 from ftstab_mj.certificate_cache import cached_certify
 from ftstab_mj.ideal_chain import simulate_chain
 from ftstab_mj.scenario import load_scenario, shipped_scenarios
-from test_control_certificate import K0_SETS, exact_k0
+from test_control_certificate import K0_SETS, _max_ratio_search, exact_k0
 
 
 def test_nelder_mead_finds_a_quadratic_minimum():
@@ -133,6 +133,27 @@ def test_shipped_ideal_chain_gains_beat_the_bound_from_100_random_states(name):
     settle = run.t[len(run.t) - np.argmax(above[::-1], axis=0)]  # the sample after the last one above
     assert np.all(settle < T)
     print(f"{name}: settle / T(z0) <= {float(np.max(settle / T)):.3g}, T(z0) in [{T.min():.4g}, {T.max():.4g}] s")
+
+
+@pytest.mark.parametrize("name", sorted(IDEAL_CHAIN_SCENARIOS))
+def test_the_shipped_longer_chain_certificates_survive_an_adversarial_search(name):
+    """Soundness at r = 4 and 5 with k < 0, where no exact value is known: the certificate a run of
+    the scenario computes claims R = dV1/dt / V1^alpha <= -c_lower everywhere. Neither its own
+    witness (R there is -c_upper to rounding: c_upper - c_lower is 0.2 % at r = 4, 2.8 % at r = 5,
+    so a c_lower above c by more than that fails here) nor the adversarial ascent (the controller's
+    own Lie derivative, 256 starts on {V1 = 1}; it reaches 0.646 and 0.415, short of the witness)
+    finds a state above the claim (1e-9 relative slack for the float evaluation of R)."""
+    sc = load_scenario(IDEAL_CHAIN_SCENARIOS[name])
+    (loop,) = sc.loops
+    h = loop.law(sc.plant.params["r"]).hong
+    cert = cached_certify(h.r, h.k, h.gains, max_boxes=sc.metrics.certificate_boxes)
+    assert cert.certified and h.k < 0
+    w = np.array(cert.witness)
+    at_witness = float(h.closed_loop_dV1dt(w) / h.V1(w) ** cert.alpha)
+    found = _max_ratio_search(h, cert.alpha, np.random.default_rng(h.r), starts=256)
+    print(f"{name}: c_lower {cert.c_lower:.6g}, witness {-at_witness:.6g}, c_upper {cert.c_upper:.6g}, ascent {-found:.6g}")
+    assert -cert.c_upper * (1 + 1e-9) <= at_witness <= -cert.c_lower * (1 - 1e-9)
+    assert found <= -cert.c_lower + 1e-9 * abs(found)
 
 
 def test_cli_design_prints_gains_and_a_snippet_that_runs(tmp_path):
