@@ -230,7 +230,7 @@ def test_the_box_bound_is_second_order_at_the_witness(r, k, gains):
     assert ex[0] >= 10 ** 1.8 * ex[1], ex
 
 
-def _mean_value_violations(r, seed, genuine=True, boxes=60, pairs=40, slope_scale=1.0):
+def _mean_value_violations(r, seed, genuine=True, boxes=60, pairs=40, slope_scale=1.0, one_at_a_time=False):
     """Steps 2-3 of certificate._Ratio.boxes, checked off the manifold: on random boxes near the
     zeros of the recursion variables (where factors phi become variables of their own), random
     point pairs P, Q of the product X x P (phi anywhere in its range, not phi(s)) must satisfy
@@ -239,7 +239,10 @@ def _mean_value_violations(r, seed, genuine=True, boxes=60, pairs=40, slope_scal
     enclosure of F's gradient. genuine=False evaluates without Terms.evaluate's ``extra`` masks
     (the rule that preceded it: the identities of the manifold used on the whole product);
     slope_scale != 1 evaluates F with the affine splits' slopes scaled (phi = scale a x + delta),
-    a function whose gradient G is not. Returns (violations, pairs checked)."""
+    a function whose gradient G is not. one_at_a_time: Q is P with one variable moved (each box
+    coordinate and each remainder in turn), so the inequality has no slack from the other variables'
+    terms: an error in one partial derivative (e.g. a remainder's path through W) shows at its own
+    size. Returns (violations, pairs checked)."""
     from ftstab_mj.control.certificate import _Ratio, _term
     from ftstab_mj.control.interval import _up
 
@@ -258,53 +261,80 @@ def _mean_value_violations(r, seed, genuine=True, boxes=60, pairs=40, slope_scal
         lo, hi = np.clip(mid - half, -1, 1), np.clip(mid + half, -1, 1)
         with np.errstate(all="ignore"):
             F, phis, _ = obj.product(face, lo, hi)
-            pts = []
-            for _ in range(2):
-                x = lo[:, None] + rng.uniform(0, 1, (boxes, pairs, d)) * (hi - lo)[:, None]
-                p = {sl: rng.uniform(0, 1, (boxes, pairs)) * (v.rng.hi - v.rng.lo)[:, None] + v.rng.lo[:, None]
-                     for sl, v in phis.items()}
-                pts.append((x, p))
-            (xp, pp), (xq, pq) = pts
+            draw_x = lambda: lo[:, None] + rng.uniform(0, 1, (boxes, pairs, d)) * (hi - lo)[:, None]  # noqa: E731
+            draw_p = lambda v: rng.uniform(0, 1, (boxes, pairs)) * (v.rng.hi - v.rng.lo)[:, None] + v.rng.lo[:, None]  # noqa: E731
+            xp, pp = draw_x(), {sl: draw_p(v) for sl, v in phis.items()}
+            if one_at_a_time:  # Q: P with variable j moved, for each j (box coordinates first, then remainders)
+                moves = [("x", jj) for jj in range(d)] + [("p", sl) for sl in phis]
+            else:
+                moves = [("all", None)]
             flat = lambda a: a.reshape(boxes * pairs, *a.shape[2:])  # noqa: E731
             rep = lambda m: np.repeat(m, pairs)  # noqa: E731
             FP = obj.at(face, flat(xp), {sl: (rep(v.near), rep(v.slope) * slope_scale, flat(pp[sl]))
                                          for sl, v in phis.items()})
-            FQ = obj.at(face, flat(xq), {sl: (rep(v.near), rep(v.slope) * slope_scale, flat(pq[sl]))
-                                         for sl, v in phis.items()})
-            bound = FP.hi
-            for jj, g in enumerate(F.g):
-                if g is None:
-                    continue
-                if jj < d:
-                    a, b = flat(xq[..., jj]), flat(xp[..., jj])
-                elif jj - d in phis:
-                    a, b = flat(pq[jj - d]), flat(pp[jj - d])
-                else:
-                    continue
-                bound = _up(bound + _term(Iv(np.repeat(g.lo, pairs), np.repeat(g.hi, pairs)), a, a, b))
-        near = np.zeros(boxes, dtype=bool)
-        for v in phis.values():
-            near |= v.near
-        ok = rep(near) & np.isfinite(bound) & np.isfinite(FQ.lo)
-        bad += int(np.sum(FQ.lo[ok] > bound[ok]))
-        checked += int(ok.sum())
+            near = np.zeros(boxes, dtype=bool)
+            for v in phis.values():
+                near |= v.near
+            for kind, which in moves:
+                xq, pq = xp.copy(), dict(pp)
+                if kind in ("all", "x"):
+                    fresh = draw_x()
+                    if kind == "all":
+                        xq = fresh
+                    else:
+                        xq[..., which] = fresh[..., which]
+                for sl, v in phis.items():
+                    if kind == "all" or (kind == "p" and sl == which):
+                        pq[sl] = draw_p(v)
+                FQ = obj.at(face, flat(xq), {sl: (rep(v.near), rep(v.slope) * slope_scale, flat(pq[sl]))
+                                             for sl, v in phis.items()})
+                bound = FP.hi
+                for jj, g in enumerate(F.g):
+                    if g is None:
+                        continue
+                    if jj < d:
+                        a, b = flat(xq[..., jj]), flat(xp[..., jj])
+                    elif jj - d in phis:
+                        a, b = flat(pq[jj - d]), flat(pp[jj - d])
+                    else:
+                        continue
+                    bound = _up(bound + _term(Iv(np.repeat(g.lo, pairs), np.repeat(g.hi, pairs)), a, a, b))
+                ok = rep(near if kind != "p" else phis[which].near) & np.isfinite(bound) & np.isfinite(FQ.lo)
+                bad += int(np.sum(FQ.lo[ok] > bound[ok]))
+                checked += int(ok.sum())
     return bad, checked
 
 
 @pytest.mark.parametrize("r", [3, 4, 5, 6])
-def test_mean_value_form_encloses_the_gradient_off_the_manifold(r):
+def test_mean_value_form_encloses_the_gradient_off_the_manifold(r, monkeypatch):
     """The gradient enclosure of the B&B's mean-value form is one of F on the whole product of the
     box and the remainder ranges (certificate._Ratio.boxes, steps 2-3): no pair of random points of
-    it violates the mean value inequality; and the check has teeth: the rule that preceded it (with
-    the manifold's identities used off the manifold) violates it on the same boxes, and so does F
-    evaluated with slopes 10 % off those its gradient was taken with."""
+    it violates the mean value inequality, nor any pair that differs in one variable; and the check
+    has teeth: the rule that preceded it (with the manifold's identities used off the manifold)
+    violates it on the same boxes, and so does F evaluated with slopes 10 % off those its gradient
+    was taken with. W's own gradient with sig(z, b) - sig(v, b) taken as s (its value on the
+    manifold, not widened by the remainders' reach) passes the pairs (0 violations at r = 3..6) and
+    fails the one-variable moves (108, 679, 124, 1382 at r = 3..6)."""
+    from ftstab_mj.control.hong_terms import _power
+
     bad, checked = _mean_value_violations(r, 11 + r)
     assert checked > 2000
     assert bad == 0
+    one_bad, one_checked = _mean_value_violations(r, 11 + r, one_at_a_time=True)
+    assert one_checked > 20000
+    assert one_bad == 0
     old_bad, _ = _mean_value_violations(r, 11 + r, genuine=False)
     slope_bad, _ = _mean_value_violations(r, 11 + r, slope_scale=1.1)
-    print(f"r = {r}: {checked} pairs, {bad} violations; the old rule: {old_bad}; slopes 10 % off: {slope_bad}")
-    assert old_bad > 0 and slope_bad > 0
+    own_W = Terms._W
+
+    def manifold_dz(self, z, a, S, s, diff, b_index, fl, offm=None, f=None, slot=None):
+        return own_W(self, z, a, S, s, diff, b_index, fl, offm, _power, slot)  # _power: the enclosure as given
+
+    monkeypatch.setattr(Terms, "_W", manifold_dz)
+    dz_bad, _ = _mean_value_violations(r, 11 + r, one_at_a_time=True)
+    print(f"r = {r}: {checked} pairs, {bad} violations; {one_checked} one-variable pairs, {one_bad}; the old rule: "
+          f"{old_bad}; slopes 10 % off: {slope_bad}; W's dz on the manifold: {dz_bad}")
+    assert old_bad > 0 and slope_bad > 0 and dz_bad > 0
 
 
 @pytest.mark.parametrize("r, k, gains, c_ref, alpha_ref", REFERENCE)
