@@ -652,6 +652,8 @@ def cmd_montecarlo(args) -> int:
         raise UsageError(f"--box: expected {r} half-widths (one per z_i of loop {loop}), found {len(box)}")
     if args.on == "chain" and (args.workers > 1 or args.scheduler or args.engine):
         raise UsageError("--on chain: expected no --workers/--engine/--scheduler (the native chain uses both cores itself)")
+    if args.on == "chain":
+        mc.chain_loop(sc, loop)  # a plant with no exact chain twin is refused before anything is printed
     Z0 = mc.Distribution(args.states, tuple(box), args.seed).draw()
     out = Path(args.out or Path("runs") / f"{sc.name}-montecarlo")
     tty = sys.stderr.isatty()

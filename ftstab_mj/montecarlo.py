@@ -65,7 +65,7 @@ def settle_times(t: np.ndarray, V1: np.ndarray, level: float) -> np.ndarray:
     return np.where(any_above, out, t[0])
 
 
-def _chain_loop(sc, loop: str):
+def chain_loop(sc, loop: str):
     """(LoopSpec, plant) of the scenario's loop, refusing what has no exact ideal-chain twin."""
     from ftstab_mj.plants import make_plant
 
@@ -109,7 +109,7 @@ def run_chain(sc, loop: str, Z0: np.ndarray, chunk: int = 128, native="auto", pr
     from ftstab_mj.ideal_chain import simulate_chain
     from ftstab_mj.sim import steps_per_period
 
-    lp, plant = _chain_loop(sc, loop)
+    lp, plant = chain_loop(sc, loop)
     law = lp.law(plant.r)
     info = loop_info(sc, lp, law, plant)
     substeps = steps_per_period(sc.sim.period, sc.sim.physics_step)

@@ -79,6 +79,7 @@ def test_chain_matches_the_numpy_reference_path():
 def test_chain_mode_refuses_a_plant_without_an_exact_chain_twin(tmp_path):
     res = run_cli("montecarlo", "arm_robust", "--states", "4", "--out", tmp_path / "o")
     assert res.returncode == 2 and res.stderr.count("\n") == 1 and "--on plant" in res.stderr
+    assert res.stdout == ""  # the refusal is the only line: no header printed before it
     assert "Traceback" not in res.stderr and not (tmp_path / "o").exists()
     for bad in (["--states", "0"], ["--states", "3", "--box", "1,2,3"], ["--states", "3", "--box", "1,nan"]):
         res = run_cli("montecarlo", "cart_r2_robust", *bad, "--out", tmp_path / "o")
