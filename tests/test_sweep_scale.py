@@ -382,6 +382,7 @@ def test_a_local_dask_worker_stopped_mid_sweep_is_replaced_and_its_rows_run_agai
     import time
 
     import dask
+    import distributed  # noqa: F401 - registers its configuration defaults, read below (else a KeyError when run alone)
 
     monkeypatch.setattr(engine, "WORKER_STOP_TIMEOUT", 1.0)
     rows = [r for r in expand(load_sweep(write_sweep(tmp_path, CHAIN_SWEEP)))]
