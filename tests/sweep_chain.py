@@ -39,6 +39,16 @@ class ChainTask:
 
 
 @dataclass(frozen=True)
+class WhereTask(ChainTask):
+    """A :class:`ChainTask` whose metrics also say which process ran the row (``pid``)."""
+
+    def __call__(self, index, params) -> dict:
+        out = super().__call__(index, params)
+        out["metrics"]["pid"] = os.getpid()
+        return out
+
+
+@dataclass(frozen=True)
 class NoValidationTask(ScenarioTask):
     """A :class:`ScenarioTask` whose rows fail if it validates one itself: where it runs, it runs only the
     scenarios prepare() validated in the parent (inherited by a fork, or carried with the chunk)."""

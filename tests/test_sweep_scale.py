@@ -183,11 +183,35 @@ print(json.dumps(out == {i: r["metrics"] for i, r in execute(items, ChainTask(),
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="workers are forked on Linux only (spawned elsewhere)")
 def test_forked_workers_after_the_first_row_run_in_the_parent_give_the_serial_results():
-    for n in (1, 5):  # one row: the parent's only; five: the first here, four in forked workers
+    for n in (1, 5, 16):  # one and five rows: all in forked workers; 16: the first here, 15 in forked workers
         out = subprocess.run([sys.executable, "-c", FORKED_ROWS, str(n)], capture_output=True, text=True, cwd=ROOT,
                              timeout=120)
         assert out.returncode == 0, out.stderr
         assert out.stdout.split() == ["true"]
+
+
+WHERE_ROWS = """
+import json, os, sys
+from ftstab_mj.sweep.engine import WARM_UP_ROWS_PER_WORKER, execute, start_method
+from tests.sweep_chain import WhereTask
+assert start_method() == "fork"
+out = {}
+for n in (2, 2 * WARM_UP_ROWS_PER_WORKER):
+    items = [(i, (("period", 0.01),)) for i in range(n)]
+    pids = {i: r["metrics"]["pid"] for i, r in execute(items, WhereTask(0.2), "processes", workers=2)}
+    out[n] = sorted(i for i, pid in pids.items() if pid == os.getpid())
+print(json.dumps(out))
+"""
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="workers are forked on Linux only (spawned elsewhere)")
+def test_the_parent_runs_a_warm_up_row_only_when_each_worker_has_many():
+    """With fork, the parent runs the first row before forking (its lazy imports and caches are then inherited)
+    only from WARM_UP_ROWS_PER_WORKER rows a worker: that row runs alone, so 2 long rows on 2 workers would
+    otherwise run one after the other. 2 rows: none in the parent; 16: row 0 only."""
+    out = subprocess.run([sys.executable, "-c", WHERE_ROWS], capture_output=True, text=True, cwd=ROOT, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert json.loads(out.stdout) == {"2": [], "16": [0]}
 
 
 BATCH_PROCESS = """
@@ -332,12 +356,12 @@ print(json.dumps(seen))
 def test_the_callers_work_meanwhile_runs_once_after_the_workers_are_forked_and_before_their_results():
     """execute(meanwhile=...) runs the caller's work (a sweep: the table writer's imports) in this process once the
     processes engine's 2 workers exist (so they never inherit what it starts: pyarrow's allocator thread),
-    before the workers' results are read (only the parent's first row is in by then); serial never calls it."""
+    before the workers' results are read (none is in by then); serial never calls it."""
     out = subprocess.run([sys.executable, "-c", MEANWHILE], capture_output=True, text=True, cwd=ROOT, timeout=120)
     assert out.returncode == 0, out.stderr
     seen = json.loads(out.stdout)
     assert seen["serial"] == [[], list(range(6))]
-    assert seen["processes"] == [[[2, 1]], list(range(6))]
+    assert seen["processes"] == [[[2, 0]], list(range(6))]  # 6 rows on 2 workers: no warm-up row in the parent
 
 
 STOPPED_WORKER = """

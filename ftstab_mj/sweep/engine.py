@@ -200,14 +200,19 @@ class _StopWatch:
                 del self.since[proc.pid]
 
 
+WARM_UP_ROWS_PER_WORKER = 8  # rows a worker from which the parent runs the first row before the fork (_processes)
+
+
 def _processes(items, task, workers, meanwhile=None) -> Iterator[tuple[int, dict | None]]:
     import multiprocessing
     import sys
     from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 
-    if start_method() == "fork":
+    if start_method() == "fork" and len(items) >= WARM_UP_ROWS_PER_WORKER * workers:
         # the first row runs here, before the fork: what each worker would do at its first row (lazy
-        # imports, the native kernel, the per-process caches: ~0.1 s of CPU) is done once and inherited
+        # imports, the native kernel, the per-process caches: ~0.1 s of CPU) is done once and inherited.
+        # That row runs alone, so it can add one row's time to the sweep's wall: with many rows a worker
+        # that is a small share; with few (2 long rows on 2 workers) it would run them one after the other
         (i, params), items = items[0], items[1:]
         yield i, guarded(task, i, params)
         if not items:
