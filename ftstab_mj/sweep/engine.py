@@ -58,6 +58,7 @@ ENGINES = ("serial", "processes", "dask")
 GUIDED = 2  # a chunk holds about 1 / (GUIDED x workers) of the rows not yet handed out (guided scheduling)
 MIN_CHUNK = 2  # rows per task at least, unless a worker would be left without a task (chunks())
 MAX_CHUNK = 32  # rows per task at most: a lost chunk (dead worker) costs a resume at most this many rows
+WARM_UP_ROWS_PER_WORKER = 8  # rows a worker from which the parent runs the first row before the fork (_processes)
 # a local cluster's worker not up within this (s) fails the start, which LocalCluster would otherwise wait
 # for without end (a worker process stopped while starting kept `ftstab sweep` waiting, silent, 605 s)
 WORKER_START_TIMEOUT = 60.0
@@ -198,9 +199,6 @@ class _StopWatch:
                 os.kill(proc.pid, signal.SIGKILL)  # a stopped process cannot act on SIGTERM
                 self.killed.append(proc.pid)
                 del self.since[proc.pid]
-
-
-WARM_UP_ROWS_PER_WORKER = 8  # rows a worker from which the parent runs the first row before the fork (_processes)
 
 
 def _processes(items, task, workers, meanwhile=None) -> Iterator[tuple[int, dict | None]]:
