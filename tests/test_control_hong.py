@@ -143,3 +143,77 @@ def test_parameter_validation_names_the_parameter(args, name):
 def test_full_form_accepts_k_close_to_minus_one_over_r():
     hong = HongController(2, -0.49, (1.0, 2.0))
     assert np.isfinite(hong.u0(np.array([0.3, -0.2])))
+
+
+def _V1_u0_exact(r, k, gains, z):
+    """(V1, u0) of the full form at z (r mpf numbers), mpmath at the current precision, from the
+    paper's formulas (not the package's): p_i = 1 + (i-1) k, beta_i = (2 + k)/p_{i+1} - 1, v_0 = 0,
+    v_{i+1} = -l_{i+1} sig(sig(z_{i+1}, beta_i) - sig(v_i, beta_i), p_{i+2}/(p_{i+1} beta_i)),
+    V1 = sum_j W(z_j, v_{j-1}, beta_{j-1}); k and the gains are the floats taken exactly."""
+    import mpmath as mp
+
+    k = mp.mpf(float(k))
+    p = [1 + i * k for i in range(r + 1)]
+    sig = lambda a, e: mp.sign(a) * abs(a) ** e  # noqa: E731
+    v, V = mp.mpf(0), mp.mpf(0)
+    for i in range(r):
+        b = (2 + k) / p[i] - 1
+        V += (abs(z[i]) ** (b + 1) - abs(v) ** (b + 1)) / (b + 1) - sig(v, b) * (z[i] - v)
+        v = -mp.mpf(float(gains[i])) * sig(sig(z[i], b) - sig(v, b), p[i + 1] / (p[i] * b))
+    return V, v
+
+
+def _dV1dt_exact(r, k, gains, z):
+    """dV1/dt along z' = (z_2, .., z_r, u0) at the float state z taken exactly: d/dt V1(z + t z') at
+    t = 0 (mpmath's numerical derivative at the current precision; V1 is C^1)."""
+    import mpmath as mp
+
+    z = [mp.mpf(float(x)) for x in z]
+    zdot = z[1:] + [_V1_u0_exact(r, k, gains, z)[1]]
+    return mp.diff(lambda t: _V1_u0_exact(r, k, gains, [a + t * b for a, b in zip(z, zdot)])[0], 0)
+
+
+# gains spanning decades (the certificate's K0 sets): the worst conditioned ones at each r
+SPREAD_GAINS = {2: (0.1, 1e5), 3: (0.1, 45.94, 1e5), 4: (1.253, 3.042, 50.211, 1e5), 5: (0.65, 1.2, 1.62, 12.63, 1000.0)}
+
+
+@pytest.mark.parametrize("r", [2, 3, 4, 5])
+def test_float_dV1dt_is_backward_stable_over_the_whole_range_of_k(r):
+    """closed_loop_dV1dt at a float state z is, to rounding, the exact dV1/dt (mpmath, 40 digits) at
+    a state a couple of ulps from z, for k over the whole admissible range (-1/r, 0): its error is
+    at most 2 D + 64 eps |exact|, D = sum over the coordinates of |exact(z + 2 ulp e_j) - exact(z)|
+    (each move taken both ways, the mean). Measured: error / bound <= 0.44 (r = 2..5, k = -0.1/r ..
+    -0.999/r, 16 states each; outside the suite, 60 states each: error <= 4 D). The relative error is the
+    function's conditioning, not the evaluation's: it grows with gains spanning decades as k nears
+    -1/r (see HongController.lie_derivative). States near the zeros of the recursion variables
+    (log-uniform moduli 1e-6..1), where the small exponents act. Teeth: the controller at z
+    (1 + 1e-12), i.e. a backward error of ~4500 ulps, fails the bound on most states."""
+    import mpmath as mp
+
+    from ftstab_mj.control.hong_terms import Terms
+
+    gains, n, eps = SPREAD_GAINS[r], 16, np.finfo(float).eps
+    rng = np.random.default_rng(300 + r)
+    for f in (0.1, 0.5, 0.9, 0.99, 0.999):
+        k = -f / r
+        hong = HongController(r, k, gains, check_hurwitz=False)
+        s = np.sign(rng.uniform(-1, 1, (n, r))) * 10.0 ** rng.uniform(-6, 0, (n, r))
+        s[np.arange(n), rng.integers(0, r, n)] = 1.0
+        z = np.stack(Terms(r, k, gains).z_of([s[:, i] for i in range(r)])[0], axis=-1)
+        got, off = hong.closed_loop_dV1dt(z), hong.closed_loop_dV1dt(z * (1 + 1e-12))
+        worst, caught = 0.0, 0
+        with mp.workdps(40):
+            for zi, g, o in zip(z, got, off):
+                ex = _dV1dt_exact(r, k, gains, zi)
+                D = mp.mpf(0)
+                for j in range(r):
+                    for d in (-1.0, 1.0):
+                        zz = zi.copy()
+                        zz[j] += d * 2.0 * np.spacing(zi[j])
+                        D += abs(_dV1dt_exact(r, k, gains, zz) - ex) / 2
+                bound = 2 * D + 64 * eps * abs(ex)
+                worst = max(worst, float(abs(mp.mpf(g) - ex) / bound))
+                caught += abs(mp.mpf(o) - ex) > bound
+        print(f"r = {r}, k = -{f}/r: largest error / bound {worst:.3g}; z (1 + 1e-12) beyond it on {caught} of {n}")
+        assert worst <= 1.0, (r, k)
+        assert caught >= n // 2, (r, k)

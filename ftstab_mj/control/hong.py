@@ -187,6 +187,15 @@ class HongController:
         Forward-mode chain rule through the recursion of the v_i. Where an intermediate
         derivative is singular (an argument of a fractional power is exactly 0, a set of measure
         zero), the result is NaN; callers sampling random states drop those points.
+
+        Rounding: the result is the exact dV1/dt at a state a couple of ulps from z (backward stable,
+        tested against mpmath for every admissible k). Its relative error is the function's own
+        conditioning: near a zero of s_i = sig(z_i, beta_{i-1}) - sig(v_{i-1}, beta_{i-1}) the two
+        terms nearly cancel, and they are large where the gains span decades and beta_{i-1} grows
+        as k nears -1/r. Measured, states near those zeros (moduli 1e-6..1), median / worst of 60:
+        r = 3, gains 0.1 .. 1e5: 7e-15 / 5e-13 at k = -0.1/r, 8e-13 / 1e-9 at -0.7/r, 2e-11 / 6e-8 at
+        -0.9/r, 3e-10 / 2e-6 at -0.99/r; r = 4, gains 1.25 .. 1e5: 2e-13 / 4e-11, 2e-10 / 7e-8,
+        1e-7 / 3e-4, 4e-5 / 4e-2. Gains within a decade (1 .. 5 at r = 3): below 5e-14 for every k.
         """
         z = np.asarray(z, dtype=float)
         zdot = np.asarray(zdot, dtype=float)
