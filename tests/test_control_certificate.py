@@ -763,3 +763,123 @@ def test_the_floor_of_W_holds_for_any_arguments_and_is_nearly_tight_near_k0():
             assert min(ratios) >= 1, (k, bi, min(ratios))
             if k == -0.002:
                 assert min(ratios) < 1.15, (bi, min(ratios))
+
+
+def _held_boxes(r, seed, boxes=48):
+    """Random boxes of each face of Terms(r, k, gains) (random k < 0, gains around K0_SETS') that hold
+    s_j = 0 for one coordinate j (an end at 0 or straddling it) and are thin (1e-6..1e-2) in every
+    coordinate: where |s_j|^(q_j - 1) (an affine factor, step 5 of certificate._Ratio.boxes) takes
+    nearly all of [0, 1]. Yields (obj, face, lo, hi)."""
+    from ftstab_mj.control.certificate import _Ratio
+
+    rng = np.random.default_rng(seed)
+    base = [g for g in K0_SETS if len(g) == r][-1]
+    k = -rng.uniform(0.002, 0.4) / r
+    gains = tuple(float(g) for g in np.array(base) * 2.0 ** rng.uniform(-1, 1, r))
+    obj = _Ratio(Terms(r, k, gains), "c")
+    d = r - 1
+    for face in range(r):
+        mid = rng.uniform(-1, 1, (boxes, d)) * 10.0 ** rng.uniform(-3, 0, (boxes, d))
+        half = 10.0 ** rng.uniform(-6, -2, (boxes, d))
+        j = rng.integers(0, d, boxes)
+        rows = np.arange(boxes)
+        mid[rows, j] = rng.choice([-1.0, 0.0, 1.0], boxes) * half[rows, j]  # 0 at an end or inside
+        yield obj, face, np.clip(mid - half, -1, 1), np.clip(mid + half, -1, 1)
+
+
+def _held_violations(r, seed, monkeypatch=None, one_end=False):
+    """(violations, boxes held, boxes): the B&B's bound over each box of _held_boxes against the
+    guaranteed lower bounds of R at 1024 points of it, whose coordinate at 0 is log-uniform in
+    1e-300..its width (R moves with |s_j|^(q_j - 1) there) or exactly 0. one_end: step 5 held at
+    the lower end of each range only (wrong: the maximum of an affine function may be at the other)."""
+    import ftstab_mj.control.certificate as cm
+
+    if one_end:
+        forms = cm._Ratio._forms
+        monkeypatch.setattr(cm._Ratio, "_forms", lambda self, face, lo, hi, pin=None: forms(
+            self, face, lo, hi, None if pin is None else {sl: np.minimum(p, 1) for sl, p in pin.items()}))
+    monkeypatch.setattr(cm, "HELD_EXPONENT", np.inf)  # the step at every exponent (the limit is for speed)
+    held_m = []
+    held = cm._Ratio._held
+    monkeypatch.setattr(cm._Ratio, "_held", lambda self, *a: held_m.append(held(self, *a)) or held_m[-1])
+    rng = np.random.default_rng(seed + 1)
+    bad = used = total = 0
+    for obj, face, lo, hi in _held_boxes(r, seed):
+        with np.errstate(all="ignore"):
+            ub = obj.boxes(face, lo, hi)[0]
+        used += int(np.isfinite(held_m[-1]).sum())
+        total += len(lo)
+        d = r - 1
+        for b in range(len(lo)):
+            pts = rng.uniform(lo[b], hi[b], (1024, d))
+            for jj in np.nonzero((lo[b] <= 0) & (hi[b] >= 0))[0]:
+                side = np.where(rng.uniform(size=1024) < 0.5, lo[b, jj], hi[b, jj])
+                pts[:, jj] = np.sign(side) * np.abs(side) * 10.0 ** rng.uniform(-300, 0, 1024)
+                pts[:8, jj] = 0.0
+            with np.errstate(all="ignore"):
+                at = obj.points(np.insert(pts, face, 1.0, axis=1)).lo
+            bad += int(np.nanmax(at) > ub[b])
+    return bad, used, total
+
+
+@pytest.mark.parametrize("r", [3, 4, 5, 6])
+def test_held_ends_bound_R_on_boxes_that_hold_a_zero(r, monkeypatch):
+    """Step 5 of certificate._Ratio.boxes (the affine factors' remainders held at both ends of their
+    ranges, the largest of the 2^m bounds) on thin boxes that hold s_j = 0, where |s_j|^(q_j - 1)
+    runs over nearly [0, 1]: the bound is never below R at points of the box (0 violations), step 5
+    is in use on many of the boxes, and the check has teeth: held at the lower end only, the bound
+    falls below R on some of the same boxes."""
+    bad, used, total = _held_violations(r, 40 + r, monkeypatch)
+    assert bad == 0
+    assert used >= total // 10, (used, total)
+    monkeypatch.undo()
+    wrong, _, _ = _held_violations(r, 40 + r, monkeypatch, one_end=True)
+    assert wrong > 0
+    print(f"r = {r}: step 5 used on {used} of {total} boxes, 0 violations; held at one end only: {wrong}")
+
+
+@pytest.mark.parametrize("r", [4, 6])
+def test_R_is_affine_in_the_held_remainders_and_not_in_the_others(r):
+    """What step 5 rests on: F (certificate._Ratio.at, R with each split factor phi = a x + d) at a
+    point of the product of a box near the zeros and the remainder ranges, with one remainder d moved
+    over 17 values of its range and the rest held, lies on the chord between its values at the ends
+    (to rounding, 1e-9 relative) for the slots AFFINE_SLOTS; for the other split factors (sig(s_i,
+    e_i) in v_i, z_i, sig(s_i, q_i) in S_i, which enter V1 and W) it does not, somewhere: so holding
+    one of those at its ends would not be sound, and the check sees it."""
+    from ftstab_mj.control.certificate import AFFINE_SLOTS, SLOTS
+
+    rng = np.random.default_rng(r)
+    dev = {True: 0.0, False: 0.0}
+    seen = {True: 0, False: 0}
+    t = np.linspace(0.0, 1.0, 17)
+    for obj, face, lo, hi in _held_boxes(r, 70 + r, boxes=24 if r < 6 else 8):
+        with np.errstate(all="ignore"):
+            F, phis, _ = obj.product(face, lo, hi)
+        n, d = len(lo), r - 1
+        x = rng.uniform(lo, hi)
+        base = {sl: rng.uniform(v.rng.lo, v.rng.hi) for sl, v in phis.items()}
+        for sl, v in phis.items():
+            w = v.rng.hi - v.rng.lo
+            ok = v.near & np.isfinite(w) & (w > 0)
+            if not ok.any():
+                continue
+            vals = []
+            for tt in t:
+                p = dict(base)
+                p[sl] = v.rng.lo + tt * w
+                with np.errstate(all="ignore"):
+                    q = obj.at(face, x, {s: (phis[s].near, phis[s].slope, p[s]) for s in phis})
+                vals.append(0.5 * (q.lo + q.hi))
+            vals = np.array(vals)  # (17, n)
+            chord = vals[0] + t[:, None] * (vals[-1] - vals[0])
+            scale = np.nanmax(np.abs(vals), axis=0) + 1e-300
+            rel = np.nanmax(np.abs(vals - chord), axis=0) / scale
+            fin = ok & np.isfinite(rel)
+            aff = sl % SLOTS in AFFINE_SLOTS
+            if fin.any():
+                dev[aff] = max(dev[aff], float(np.max(rel[fin])))
+                seen[aff] += int(fin.sum())
+    assert seen[True] > 50 and seen[False] > 50, seen
+    assert dev[True] <= 1e-9, dev
+    assert dev[False] > 1e-6, dev
+    print(f"r = {r}: largest relative distance from the chord {dev} over {seen} (affine: True)")

@@ -46,6 +46,15 @@ MAX_LIVE_BOXES = 2_000_000  # memory cap of the B&B (about 0.2 GB at r = 6)
 # (r = 5, k = -0.01: 22 % more boxes a CPU second than at 8192; small problems never reach it)
 SPLIT_BATCH = 32768
 CERTIFIED, NOT_CERTIFIED, UNDECIDED = "certified", "not certified", "undecided"
+# factors of Terms.evaluate (slot % SLOTS) that dV1/dt is affine in: |y_i|^(1 - 1/beta_{i-1}) and
+# |s_i|^(q_i - 1), which enter only dS_i/dt (step 5 of _Ratio.boxes)
+AFFINE_SLOTS = (0, 1)
+# held only for exponents this small: |x|^e on a box of width w that holds 0 ranges over [0, w^e],
+# which still spans half of [0, 1] at w = 1e-6 for e <= 0.05; a larger e shrinks with the box, and
+# holding it costs more than it saves (r = 3, k = -0.1: +20 % CPU for 1.5 % fewer boxes)
+HELD_EXPONENT = 0.03
+HELD_SHARE = 0.5  # held only where their mean-value terms are at least this share of the excess
+MAX_HELD = 2  # of those, held at the ends of their ranges on one box: 2^MAX_HELD evaluations of it
 
 
 @dataclass(frozen=True)
@@ -226,9 +235,13 @@ class _Ratio:
         with np.errstate(all="ignore"):
             return self._ratio(*self.t.evaluate([Iv(z[:, i]) for i in range(self.r)])[:3])
 
-    def product(self, face: int, lo, hi):
+    def product(self, face: int, lo, hi, pin=None):
         """R on boxes of face ``face`` (lo, hi (n, r - 1): the s_i, i != face) as the function F of
         the box and the remainder ranges (see ``boxes``), with forward differentiation.
+
+        pin: {slot: (n,) int8} for slots of the affine factors (AFFINE_SLOTS): 1 (2) holds that
+        factor's remainder at the lower (upper) end of its range D on that box, a point (step 5 of
+        ``boxes``); 0 leaves it a variable over D.
 
         Returns (F: Dual, value and gradient enclosures over the product; phis: {slot: _Split}, the
         factors split affinely on the boxes ``near``; split: {slot: (n, r - 1)}, how much of each
@@ -253,6 +266,11 @@ class _Ratio:
             a = np.where(near, secant_slope(x.v, e, op), 0.0)
             D = affine_remainder(x.v, e, op, a)
             D = Iv(np.where(a == 0.0, chain.v.lo, D.lo), np.where(a == 0.0, chain.v.hi, D.hi))
+            if pin is not None and slot in pin:
+                assert slot % SLOTS in AFFINE_SLOTS and self.kind == "c", "only R = dV1/dt / V1^a is affine in it"
+                end = np.where(pin[slot] == 1, D.lo, np.where(pin[slot] == 2, D.hi, np.nan))
+                held = near & ~np.isnan(end)
+                D = Iv(np.where(held, end, D.lo), np.where(held, end, D.hi))
             A = Iv(a)
             g = [None if gg is None else _rows(near, A * xg, gg) for gg, xg in zip(chain.g, x.g)]
             g[d + slot] = Iv(np.where(near, 1.0, 0.0))
@@ -311,7 +329,8 @@ class _Ratio:
         Returns (upper bound of R on each box (n,), coordinate to split (n,), guaranteed lower bound
         of R at each centre (n,), centres (n, r)).
 
-        The upper bound is the smallest of two interval enclosures of R and a mean-value form.
+        The upper bound is the smallest of two interval enclosures of R, a mean-value form, and the
+        largest of the mean-value forms with some remainders held at the ends of their ranges.
         Every step below is proven; the soundness of each is stated with what it rests on.
 
         1. The enclosure E1 = Terms.evaluate over the box in intervals. Each quantity is enclosed by
@@ -344,7 +363,22 @@ class _Ratio:
            segment from c to x, inside X x D); c is Baumann's centre of each variable, F(c) enclosed
            by ``at``. Since (s, delta(s)) is in X x D and F(s, delta(s)) = R(s), this bounds R on X.
         4. E2 = F's value enclosure over X x D (``F.v``), a bound for the same reason.
-        The split rule and the centres change only the speed.
+        5. Held ends (R = dV1/dt / V1^alpha only). The factors of slots AFFINE_SLOTS,
+           f = |y_i|^(1 - 1/beta_{i-1}) and g = |s_i|^(q_i - 1) (i = 2..r-1; exponents ~ -k, so on a
+           box that holds y_i = 0 or s_i = 0 their range is nearly [0, 1] however thin the box),
+           occur in Terms.evaluate only in dS_i/dt = -l_i^beta_i q_i g (beta_{i-1} f z_{i+1} -
+           dS_{i-1}/dt), and dS_i/dt only in dS_{i+1}/dt (linearly, in the same form) and in
+           dV1/dt's term -(z_{i+1} - v_i) dS_i/dt; neither V1 nor any z_j, v_j, S_j, W or z_j - v_j
+           holds them (nor is any argument of a slot computed from them). So F = dV1/dt(s, d) x
+           V1(s, d)^-alpha is, with every other variable held, affine in each of their remainders d
+           (phi = a x + d, step 2): multi-affine in them jointly. A multi-affine function on a box
+           of those remainders takes its maximum at a vertex (held the others, it is affine in one,
+           so at one of its ends; by induction). Hence for any s in X, R(s) = F(s, delta(s)) <= max
+           over the 2^m vertices v of the held ranges of sup F(s, v, d'), d' the other remainders in
+           their ranges; each sup is bounded by steps 3-4 on the product with the held ranges made
+           the points D.lo or D.hi (the floats of the outward enclosure D, so [D.lo, D.hi] still holds
+           delta(s); the evaluation at a point is outward-rounded as any other), and the largest of
+           the 2^m bounds bounds R on the box. The kind "cp" (|dV1/dz_r| = |s_r|) holds none of them.
         tests/test_control_certificate.py checks steps 2-3 against F at random points of X x D off
         the manifold (the manifold's identities taken off it fail it, and so does F with slopes 10 %
         off its gradient's); tests/test_interval_soundness.py checks D against mpmath at the exact
@@ -355,36 +389,11 @@ class _Ratio:
         mid = 0.5 * (lo + hi)
         zc = np.insert(mid, face, 1.0, axis=1)
         with np.errstate(all="ignore"):
-            F, phis, share = self.product(face, lo, hi)
             Rc = self.points(zc)  # R at the centres: a witness candidate
-            # the mean-value form about Baumann's centre: per variable x in [lo, hi] with dF/dx in
-            # [a, b], the centre c where b (hi - c) = -a (c - lo) minimises the bound's term
-            # max over x, g of g (x - c) (c = hi where a >= 0, lo where b <= 0: monotone in x)
-            cb = mid.copy()
-            for jj in range(d):
-                if F.g[jj] is not None:
-                    cb[:, jj] = _baumann(F.g[jj], lo[:, jj], hi[:, jj], mid[:, jj])
-            centres = {}
-            for slot, (near, a, val) in phis.items():
-                g, c = F.g[d + slot], 0.5 * (val.lo + val.hi)
-                centres[slot] = (near, a, c if g is None else _baumann(g, val.lo, val.hi, c))
-            mv = self.at(face, cb, centres).hi.copy()
-            score = np.zeros((n, d))
-            for jj, g in enumerate(F.g):
-                if g is None:
-                    continue
-                if jj < d:
-                    term = _term(g, lo[:, jj], hi[:, jj], cb[:, jj])
-                    score[:, jj] += g.mag() * (hi[:, jj] - lo[:, jj])  # the midpoint form's term (x2)
-                elif jj - d in phis:
-                    val = phis[jj - d].rng
-                    term = _term(g, val.lo, val.hi, centres[jj - d][2])
-                    w = g.mag() * (val.hi - val.lo)
-                    score += share[jj - d] * np.where(np.isfinite(w), w, 0.0)[:, None]
-                else:
-                    continue
-                mv = _up(mv + term)
-            vhi = F.v.hi.copy()
+            vhi, mv, score, F, phis = self._forms(face, lo, hi)
+            ub = np.fmin(vhi, mv)
+            if self.kind == "c":
+                ub = np.fmin(ub, self._held(face, lo, hi, F, phis, self._excess))
             near = np.zeros(n, dtype=bool)
             for var in phis.values():
                 near |= var.near
@@ -392,8 +401,7 @@ class _Ratio:
                 sel = np.nonzero(near)[0]
                 box = np.insert(np.stack([lo[sel], hi[sel]], axis=-1), face, 1.0, axis=1)
                 E1 = self._ratio(*self.t.evaluate([Iv(box[:, i, 0], box[:, i, 1]) for i in range(r)])[:3])
-                vhi[sel] = np.fmin(vhi[sel], E1.hi)
-        ub = np.fmin(vhi, mv)
+                ub[sel] = np.fmin(ub[sel], E1.hi)
         ub = np.where(np.isnan(ub), np.inf, ub)
         rad = hi - lo
         # split where the mean-value form says the enclosure is widest (a variable factor's term
@@ -402,6 +410,92 @@ class _Ratio:
         split = np.where(plain, np.argmax(rad, axis=1), np.argmax(np.where(np.isfinite(score), score, 0.0), axis=1))
         lb = np.where(np.isnan(Rc.lo), -np.inf, Rc.lo)
         return ub, split, lb, zc
+
+    def _forms(self, face: int, lo, hi, pin=None):
+        """Steps 2-4 of ``boxes`` on the product (with ``pin``'s remainders held at an end, step 5):
+        (E2's upper bound (n,), the mean-value form's (n,), the split scores (n, r - 1), F, phis)."""
+        d = self.r - 1
+        n = len(lo)
+        mid = 0.5 * (lo + hi)
+        F, phis, share = self.product(face, lo, hi, pin)
+        # the mean-value form about Baumann's centre: per variable x in [lo, hi] with dF/dx in
+        # [a, b], the centre c where b (hi - c) = -a (c - lo) minimises the bound's term
+        # max over x, g of g (x - c) (c = hi where a >= 0, lo where b <= 0: monotone in x)
+        cb = mid.copy()
+        for jj in range(d):
+            if F.g[jj] is not None:
+                cb[:, jj] = _baumann(F.g[jj], lo[:, jj], hi[:, jj], mid[:, jj])
+        centres = {}
+        for slot, (near, a, val) in phis.items():
+            g, c = F.g[d + slot], 0.5 * (val.lo + val.hi)
+            centres[slot] = (near, a, c if g is None else _baumann(g, val.lo, val.hi, c))
+        mv = self.at(face, cb, centres).hi.copy()
+        base = mv.copy()
+        score = np.zeros((n, d))
+        for jj, g in enumerate(F.g):
+            if g is None:
+                continue
+            if jj < d:
+                term = _term(g, lo[:, jj], hi[:, jj], cb[:, jj])
+                score[:, jj] += g.mag() * (hi[:, jj] - lo[:, jj])  # the midpoint form's term (x2)
+            elif jj - d in phis:
+                val = phis[jj - d].rng
+                term = _term(g, val.lo, val.hi, centres[jj - d][2])
+                w = g.mag() * (val.hi - val.lo)
+                score += share[jj - d] * np.where(np.isfinite(w), w, 0.0)[:, None]
+            else:
+                continue
+            mv = _up(mv + term)
+        self._excess = mv - base  # the mean-value form's terms (for the choice of step 5's boxes)
+        return F.v.hi.copy(), mv, score, F, phis
+
+    def _exponent(self, slot: int) -> Exp:
+        """The exponent of an affine factor's slot (AFFINE_SLOTS; Terms.evaluate's numbering)."""
+        i = slot // SLOTS + 2
+        return self.t.one_m_inv_beta[i - 1] if slot % SLOTS == 0 else self.t.q_m1[i]
+
+    def _held(self, face: int, lo, hi, F, phis, excess):
+        """Step 5 of ``boxes``: on each box, up to MAX_HELD of the affine factors' remainders (those
+        whose mean-value term |dF/d delta| width(D) is largest) held at each end of their ranges in
+        turn, and the largest of the 2^m bounds (inf where none is held)."""
+        d, n = self.r - 1, len(lo)
+        cand = [sl for sl in phis if sl % SLOTS in AFFINE_SLOTS and F.g[d + sl] is not None
+                and self._exponent(sl).hi <= HELD_EXPONENT]
+        out = np.full(n, np.inf)
+        if not cand:
+            return out
+        W = np.zeros((n, len(cand)))
+        for c, sl in enumerate(cand):
+            w = F.g[d + sl].mag() * (phis[sl].rng.hi - phis[sl].rng.lo)
+            W[:, c] = np.where(phis[sl].near & ~(w <= 0), np.where(np.isnan(w), np.inf, w), 0.0)
+        order = np.argsort(-W, axis=1, kind="stable")[:, :MAX_HELD]
+        m = np.minimum((W > 0).sum(axis=1), MAX_HELD)
+        # only where the held factors' terms are most of the form's excess: elsewhere holding them
+        # cannot gain much, and it costs 2^m evaluations (speed only: any choice is sound)
+        gain = np.take_along_axis(W, order, axis=1).sum(axis=1)
+        m = np.where(gain >= HELD_SHARE * excess, m, 0)
+        rows, pins = [], {sl: [] for sl in cand}
+        for mm in range(1, MAX_HELD + 1):
+            boxes = np.nonzero(m == mm)[0]
+            if not len(boxes):
+                continue
+            for v in range(2 ** mm):  # every vertex of the held ranges
+                rows.append(boxes)
+                for sl in cand:
+                    p = np.zeros(len(boxes), dtype=np.int8)
+                    for kk in range(mm):
+                        p[order[boxes, kk] == cand.index(sl)] = 1 + ((v >> kk) & 1)
+                    pins[sl].append(p)
+        if not rows:
+            return out
+        rows = np.concatenate(rows)
+        pin = {sl: np.concatenate(p) for sl, p in pins.items()}
+        vhi, mv = self._forms(face, lo[rows], hi[rows], pin)[:2]
+        ubv = np.fmin(vhi, mv)
+        ubv = np.where(np.isnan(ubv), np.inf, ubv)
+        top = np.full(n, -np.inf)
+        np.maximum.at(top, rows, ubv)
+        return np.where(m > 0, top, np.inf)
 
 
 class _Split(NamedTuple):
