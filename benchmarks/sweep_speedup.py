@@ -18,13 +18,15 @@ prepare, writing the table, and for Dask ``import
 distributed`` and a LocalCluster of 2 workers started and closed; from them and the rows' CPU, the
 best speed-up 2 workers could give if starting them cost nothing. Then each configuration runs the
 real command in a fresh process (wall from the command's start: engine start-up included),
-alternately, --repeat times: serial, 2 dask workers (LocalCluster), 2 processes, and 2 workers of an
-external ``dask scheduler`` started once by this script (``dask worker --nworkers 2 --nthreads 1``:
-start-up paid once, as on a standing cluster). Prints median and range of the wall times, the
+alternately, --repeat times: serial, 2 dask workers (LocalCluster), 2 processes, and 2 workers of each
+of two external ``dask scheduler`` started once by this script (``dask worker --nworkers 2 --nthreads 1``:
+start-up paid once, as on a standing cluster), one with Dask's default configuration, one with the
+README's (engine.QUIET: no profiler, rarer periodic work). Prints median and range of the wall times, the
 speed-up of the medians over serial (of the command's wall, as before), the sweep's own wall next
 to it (from the first run's start to the table written, as the command prints it: what the engines
-gain without the start-up; its ratio to serial's is labelled "x"), the CPU of the command and its own workers (what a
-configuration costs whatever the machine's other load), the 1-minute load average before each run,
+gain without the start-up; its ratio to serial's is labelled "x"), the CPU of the command and its own workers, or of the
+command and the external cluster (scheduler, nannies, workers) while it ran (what a configuration
+costs whatever the machine's other load), the 1-minute load average before each run,
 and checks that every configuration wrote the same table. The machine's other load counts: before each repeat,
 :func:`machine_parallelism` measures what 2 processes can gain at all at that moment.
 
@@ -229,9 +231,21 @@ def rows_for(target: float, fixed: float, beside: float, extra: float, per_row: 
     return max(0.0, need / gain) if gain > 0 else float("inf")
 
 
-def start_external(folder: Path, env: dict):
-    """A `dask scheduler` and `dask worker --nworkers 2 --nthreads 1` as subprocesses; (address, procs)."""
-    addr_file = folder / "scheduler.json"
+def config_environment(config: dict) -> dict[str, str]:
+    """Dask configuration {key: value} as the environment variables a `dask scheduler` or `dask worker` reads
+    (DASK_ + the key's parts joined by __, upper case; Dask reads "-" and "_" as the same)."""
+    return {"DASK_" + "__".join(part.upper().replace("-", "_") for part in key.split(".")): str(value)
+            for key, value in config.items()}
+
+
+def start_external(folder: Path, env: dict, name: str = "defaults"):
+    """A `dask scheduler` and `dask worker --nworkers 2 --nthreads 1` as subprocesses, with Dask's default
+    configuration ("defaults") or with engine.QUIET's as the README's cluster commands set it ("quiet");
+    (address, procs)."""
+    from ftstab_mj.sweep.engine import QUIET
+
+    env = {**env, **(config_environment(QUIET) if name == "quiet" else {})}
+    addr_file = folder / f"scheduler-{name}.json"
     dask = [sys.executable, "-m", "distributed.cli.dask_scheduler"]
     sched = subprocess.Popen(dask + ["--scheduler-file", str(addr_file), "--port", "0", "--dashboard-address", ":0"],
                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env)
@@ -248,6 +262,30 @@ def start_external(folder: Path, env: dict):
         client.wait_for_workers(2, timeout=60)
         address = client.scheduler.address
     return address, (worker, sched)
+
+
+def tree_cpu(roots) -> float:
+    """CPU s (user + system) so far of the live processes ``roots`` (pids) and all their descendants (Linux:
+    /proc; 0 elsewhere): an external cluster's scheduler, nannies and workers, which no rusage of ours counts."""
+    parent, cpu = {}, {}
+    for entry in os.listdir("/proc") if sys.platform.startswith("linux") else ():
+        if not entry.isdigit():
+            continue
+        try:
+            with open(f"/proc/{entry}/stat") as f:
+                fields = f.read().rsplit(")", 1)[1].split()
+        except OSError:  # gone meanwhile
+            continue
+        parent[int(entry)] = int(fields[1])
+        cpu[int(entry)] = (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    total = 0.0
+    for pid in cpu:
+        p = pid
+        while p > 1 and p not in roots:
+            p = parent.get(p, 0)
+        if p in roots:
+            total += cpu[pid]
+    return total
 
 
 def become_subreaper() -> None:
@@ -353,10 +391,13 @@ def main():
             "dask, 2 workers": ("--engine", "dask", "--workers", "2"),
             "processes, 2 workers": ("--workers", "2"),
         }
-        procs = ()
-        if not args.no_external:
-            address, procs = start_external(tmp, env)
-            configs["external dask, 2 workers"] = ("--scheduler", address)
+        procs, clusters = (), {}
+        if not args.no_external:  # Dask's defaults, and the README's configuration
+            for how in ("defaults", "quiet"):
+                address, started = start_external(tmp, env, how)
+                procs += started
+                configs[f"external dask, {how}"] = ("--scheduler", address)
+                clusters[f"external dask, {how}"] = {p.pid for p in started}
         try:
             walls, sweeps, cpus, tables = {}, {}, {}, {}
             capacity = []
@@ -368,14 +409,16 @@ def main():
                     out = tmp / f"{rep}-{k}"
                     load = os.getloadavg()[0]
                     r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
+                    c0 = tree_cpu(clusters.get(name, ()))
                     t0 = time.perf_counter()
                     proc = subprocess.run([sys.executable, "-m", "ftstab_mj", "sweep", str(sweep), "--out", str(out),
                                            *extra], cwd=ROOT, capture_output=True, text=True, env=env)
                     wall = time.perf_counter() - t0
                     reap(keep={p.pid for p in procs})  # a local cluster's forkserver and workers: their CPU counts too
                     r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
-                    # CPU of the command and of the workers it started (an external cluster's is not counted)
-                    cpu = (r1.ru_utime - r0.ru_utime) + (r1.ru_stime - r0.ru_stime)
+                    # CPU of the command and of the workers it started, or of the external cluster it ran on: the
+                    # scheduler, nannies and workers (an idle cluster's periodic work while the command runs included)
+                    cpu = (r1.ru_utime - r0.ru_utime) + (r1.ru_stime - r0.ru_stime) + tree_cpu(clusters.get(name, ())) - c0
                     if proc.returncode != 0:
                         sys.exit(f"{name}: exit {proc.returncode}: {proc.stderr.strip().splitlines()[-1]}")
                     own = float(re.search(r"\(([0-9.]+) s from the first run's start to the table\)", proc.stdout)[1])

@@ -263,10 +263,10 @@ def probe():  # in a worker: who its parent is, and what that parent runs
 
     return {"parent": parent, "forkserver": b"forkserver" in cmdline, "mujoco": mujoco,
             "parent_threads": len(os.listdir(f"/proc/{parent}/task")),
-            "quiet": {key: dask.config.get(key) for key in LOCAL_QUIET}}
+            "quiet": {key: dask.config.get(key) for key in QUIET}}
 
 
-from ftstab_mj.sweep.engine import LOCAL_QUIET
+from ftstab_mj.sweep.engine import QUIET
 
 if __name__ == "__main__":
     from ftstab_mj.sweep.engine import _dask_close, _dask_connect
@@ -282,7 +282,7 @@ if __name__ == "__main__":
 def test_a_local_dask_cluster_forks_its_workers_from_one_single_threaded_forkserver_that_loaded_mujoco(tmp_path):
     """The LocalCluster's workers are children of a forkserver (not of the command: not spawned), the
     same for both, with MuJoCo already loaded (they inherit the imports) and no thread but its main one
-    (so forking it is safe), and with engine.LOCAL_QUIET's settings."""
+    (so forking it is safe), and with engine.QUIET's settings."""
     script = tmp_path / "cluster.py"
     script.write_text(LOCAL_CLUSTER)
     out = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, cwd=ROOT, timeout=240)
@@ -295,9 +295,9 @@ def test_a_local_dask_cluster_forks_its_workers_from_one_single_threaded_forkser
     import dask
     import distributed  # noqa: F401 - loads distributed's defaults into dask.config
 
-    defaults = {key: dask.config.get(key) for key in engine.LOCAL_QUIET}  # this process: Dask's own
-    assert engine.LOCAL_QUIET and all(engine.LOCAL_QUIET[k] != v for k, v in defaults.items())
-    assert all(w["quiet"] == engine.LOCAL_QUIET for w in workers), workers
+    defaults = {key: dask.config.get(key) for key in engine.QUIET}  # this process: Dask's own
+    assert engine.QUIET and all(engine.QUIET[k] != v for k, v in defaults.items())
+    assert all(w["quiet"] == engine.QUIET for w in workers), workers
 
 
 @pytest.mark.parametrize("rows, workers", [(1, 2), (5, 2), (199, 2), (1000, 2), (64, 1), (300, 7)])
@@ -442,3 +442,22 @@ def test_a_failure_to_close_the_dask_engine_is_one_line_on_stderr_and_the_rest_i
     engine._dask_close(Closes(), Closes(OSError("port busy")))
     assert capsys.readouterr().err.splitlines() == ["warning: --engine dask: closing the local cluster failed (OSError: "
                                                     "port busy); the sweep's results are not affected"]
+
+
+def test_the_readme_cluster_commands_set_exactly_the_local_clusters_quiet_configuration():
+    """The README's `export DASK_...` line for an external cluster's scheduler and workers, read by Dask as a
+    `dask worker` reads it (a fresh process, distributed's defaults loaded), gives engine.QUIET's values for
+    its keys, and names no key more: a renamed key or a misspelt variable would be silently ignored by Dask."""
+    import re
+
+    text = (ROOT / "README.md").read_text(encoding="utf-8")
+    block = text[text.index("### A sweep on a Dask cluster of several machines"):]
+    block = block[:block.index("dask scheduler")]
+    names = dict(re.findall(r"(DASK_[A-Z_]+)=(\S+)", block))
+    assert len(names) == len(engine.QUIET), names
+    probe = ("import json, dask, distributed\n"
+             f"print(json.dumps({{k: dask.config.get(k) for k in {sorted(engine.QUIET)!r}}}))")
+    env = {k: v for k, v in os.environ.items() if not k.startswith("DASK_")} | names
+    out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, env=env, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert json.loads(out.stdout.strip().splitlines()[-1]) == engine.QUIET

@@ -68,12 +68,14 @@ WORKER_START_TIMEOUT = 60.0
 WORKER_STOP_TIMEOUT = 10.0
 WATCH_INTERVAL = 1.0  # s between two looks at the process workers' states
 LOCAL_PRELOAD = ["ftstab_mj.sweep.runner"]  # what a local cluster's workers import as they start
-# a local cluster's periodic work, made rarer: the event-loop health check (20 ms by default: only warns
-# when a loop blocks for seconds), the CPU, memory and I/O samples (500 ms: for the dashboard and the
-# heartbeats' metrics) and the memory monitor (100 ms: a worker above its memory limit, "auto" = the
-# machine's memory / workers, is stopped up to 1 s later)
-LOCAL_QUIET = {"distributed.admin.tick.interval": "1s", "distributed.admin.system-monitor.interval": "5s",
-               "distributed.worker.memory.monitor-interval": "1s"}
+# a cluster's periodic work, made rarer (a local cluster's; the README gives them for an external one): no
+# statistical profiler (it samples the running row's stack every 10 ms, for the dashboard), the event-loop
+# health check (20 ms by default: only warns when a loop blocks for seconds), the CPU, memory and I/O samples
+# (500 ms: for the dashboard and the heartbeats' metrics) and the memory monitor (100 ms: a worker above its
+# memory limit, "auto" = the machine's memory / workers, is stopped up to 1 s later). With Dask's defaults an
+# idle scheduler and 2 workers with their nannies take 13 % of a core, 1.4 % with these (10 s idle, load 3)
+QUIET = {"distributed.worker.profile.enabled": False, "distributed.admin.tick.interval": "1s",
+         "distributed.admin.system-monitor.interval": "5s", "distributed.worker.memory.monitor-interval": "1s"}
 
 
 def guarded(task: Callable[[int, tuple], dict], index: int, params: tuple) -> dict:
@@ -276,16 +278,14 @@ def _dask_connect(workers: int, scheduler: str | None):
             return Client(scheduler, timeout="10s"), None
         # dashboard_address ":0": its HTTP server on a free port (None would still take 8787, and warn
         # when another cluster holds it). preload: each worker imports what a row needs as it starts
-        # (runner.dask_setup), not when its first row arrives. No statistical profiler in our own
-        # workers: it samples the running row's stack every 10 ms (about 7 % of a worker's CPU here).
+        # (runner.dask_setup), not when its first row arrives.
         # death_timeout: a nanny whose worker is not up by then gives up (LocalCluster then closes all).
         # worker_ttl: a worker silent (no heartbeat: every 0.5 s up to 10 workers) for WORKER_STOP_TIMEOUT s
         # is restarted by its nanny and its tasks run again elsewhere; distributed's default, 5 minutes (checked
         # every 5 minutes), kept a sweep waiting 5 to 10 minutes on a stopped worker. Ours only, not the config
-        # LOCAL_QUIET: the event loops' periodic work, which costs the command 5 % of a core and each
-        # worker 2 % while they wait (0.8 % and 0.25 % with it; load 4), beside the rows on the same cores
-        with dask.config.set({"distributed.worker.profile.enabled": False,  # the nannies pass it on
-                              "distributed.worker.multiprocessing-method": local_worker_method(), **LOCAL_QUIET}):
+        # QUIET: the event loops' periodic work, which costs the command 5 % of a core and each worker 2 % while
+        # they wait (0.8 % and 0.25 % with it; load 4), beside the rows on the same cores (the nannies pass it on)
+        with dask.config.set({"distributed.worker.multiprocessing-method": local_worker_method(), **QUIET}):
             cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=":0",
                                    silence_logs=logging.ERROR, preload=LOCAL_PRELOAD,
                                    death_timeout=WORKER_START_TIMEOUT,
