@@ -82,3 +82,21 @@ class StopOnceTask(ChainTask):
             else:
                 os.kill(os.getpid(), getattr(signal, self.signal))
         return super().__call__(index, params)
+
+
+@dataclass(frozen=True)
+class KillAlwaysTask(ChainTask):
+    """A :class:`ChainTask` whose row ``row`` kills its own process (SIGKILL) every time it runs, after adding
+    a line to ``marker`` (so the file counts how often it ran): a row that crashes its worker."""
+
+    row: int = 3
+    marker: str = ""
+
+    def __call__(self, index, params) -> dict:
+        import signal
+
+        if index == self.row:
+            with open(self.marker, "a") as f:
+                f.write(f"{os.getpid()}\n")
+            os.kill(os.getpid(), signal.SIGKILL)
+        return super().__call__(index, params)

@@ -32,8 +32,10 @@ sweep goes (large first, MIN_CHUNK rows last, then one row per worker where fewe
 MIN_CHUNK per worker), so the workers run out of rows together: with equal chunks, a worker that
 finished early waited for a whole chunk of the other's (measured up to 0.3 s of one worker idle at the
 end of 200 rows of 1 s on 2 processes, load 3); and a few long rows are never two to a chunk while a
-worker has none (2 rows on 2 workers ran one after the other). A chunk is the unit of
-loss: when a worker dies, every row of its chunk is lost (and retried by a resume). A worker that
+worker has none (2 rows on 2 workers ran one after the other). When a process worker
+dies (or is killed, stopped too long) its pool breaks and drops every unfinished chunk, the other
+workers' too: those run once more on a fresh pool; what a second broken pool leaves is lost (a
+resume retries it). On Dask the scheduler runs a dead worker's chunk again elsewhere. A worker that
 does not share this process's memory (spawned, Dask) gets the task as ``task.carrying(indices)``
 where the task has that method: what this process prepared for the chunk's rows travels with it
 (runner.ScenarioTask: the validated scenarios, so no row is validated twice).
@@ -180,8 +182,8 @@ def _stopped(pid: int) -> bool:
 
 class _StopWatch:
     """Kills a pool worker that stays stopped for WORKER_STOP_TIMEOUT s: ProcessPoolExecutor would wait for
-    its chunk without end. Its death breaks the pool (BrokenProcessPool): the rows not finished are lost,
-    the command says so (exit 1) and a resume runs them. The workers are this process's multiprocessing
+    its chunk without end. Its death breaks the pool (BrokenProcessPool): the rows not finished run again
+    on a fresh pool (_processes). The workers are this process's multiprocessing
     children that were not there before the pool (``before``)."""
 
     def __init__(self, before: set):
@@ -204,10 +206,6 @@ class _StopWatch:
 
 
 def _processes(items, task, workers, meanwhile=None) -> Iterator[tuple[int, dict | None]]:
-    import multiprocessing
-    import sys
-    from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
-
     if start_method() == "fork" and len(items) >= WARM_UP_ROWS_PER_WORKER * workers:
         # the first row runs here, before the fork: what each worker would do at its first row (lazy
         # imports, the native kernel, the per-process caches: ~0.1 s of CPU) is done once and inherited.
@@ -217,11 +215,28 @@ def _processes(items, task, workers, meanwhile=None) -> Iterator[tuple[int, dict
         yield i, guarded(task, i, params)
         if not items:
             return
+    # a worker that dies (or is killed, stopped: _StopWatch) breaks its pool, which then drops the rows of
+    # every chunk not finished, the other workers' too: those run once more on a fresh pool, and what a
+    # second broken pool leaves unfinished is lost (a row that kills its worker each time it runs)
+    unfinished = yield from _pool(items, task, workers, meanwhile)
+    if unfinished:
+        unfinished = yield from _pool(unfinished, task, workers)
+    yield from ((i, None) for i, _ in unfinished)
+
+
+def _pool(items, task, workers, meanwhile=None):
+    """Yields (index, result) of the rows of ``items`` a pool of ``workers`` processes finished; returns the
+    items (index, params) of the chunks it did not finish (its pool broke: a worker died or was killed)."""
+    import multiprocessing
+    import sys
+    from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+
     # checked again: a run may leave a thread behind (a log sink's), and then workers are spawned.
     # With "fork", the pool forks all its workers at the first submit, before it starts its own thread
     method = start_method()
     watch = _StopWatch(set(multiprocessing.active_children()))
     pool = ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context(method))
+    unfinished = []
     try:  # forked workers have this process's prepared rows in their memory; spawned ones get them sent
         futures = {pool.submit(run_chunk, task if method == "fork" else carrying(task, chunk), chunk): chunk
                    for chunk in chunks(items, workers)}
@@ -232,8 +247,8 @@ def _processes(items, task, workers, meanwhile=None) -> Iterator[tuple[int, dict
             done, pending = wait(pending, timeout=WATCH_INTERVAL, return_when=FIRST_COMPLETED)
             watch.check(WORKER_STOP_TIMEOUT)
             for fut in done:
-                if fut.exception() is not None:  # a worker died (BrokenProcessPool): the unfinished chunks are lost
-                    yield from ((i, None) for i, _ in futures[fut])
+                if fut.exception() is not None:  # the pool broke (BrokenProcessPool): this chunk did not finish
+                    unfinished += futures[fut]
                 else:
                     yield from fut.result()
     finally:
@@ -241,8 +256,9 @@ def _processes(items, task, workers, meanwhile=None) -> Iterator[tuple[int, dict
         pool.shutdown(wait=True, cancel_futures=True)
         for pid in watch.killed:
             print(f"warning: sweep worker process {pid} was stopped (SIGSTOP, Ctrl-Z or a debugger) for "
-                  f"{WORKER_STOP_TIMEOUT:g} s or more: killed; the rows it and its pool had not finished are lost",
-                  file=sys.stderr)
+                  f"{WORKER_STOP_TIMEOUT:g} s or more: killed; the rows its pool had not finished run again on a "
+                  f"fresh pool (once)", file=sys.stderr)
+    return sorted(unfinished, key=lambda item: item[0])
 
 
 def local_worker_method() -> str:
