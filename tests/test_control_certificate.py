@@ -902,3 +902,106 @@ def test_R_is_affine_in_the_held_remainders_and_not_in_the_others(r):
     assert dev[True] <= 1e-9, dev
     assert dev[False] > 1e-6, dev
     print(f"r = {r}: largest relative distance from the chord {dev} over {seen} (affine: True)")
+
+
+def _mp_R(r, k, gains, s, alpha):
+    """R = dV1/dt / V1^alpha at the float recursion variables s (r,), from Hong's recursion in mpmath
+    (the caller's working precision), independently of Terms: z from s (z_i = sig(s_i + sig(v_{i-1},
+    beta_{i-1}), 1/beta_{i-1}), v_i = -l_i sig(s_i, e_i)), V1 = sum W(z_i, v_{i-1}, beta_{i-1}) with W(z,
+    a, b) = int_a^z sig(x, b) - sig(a, b) dx, dV1/dt = sum (s_i z_i' - (z_i - v_{i-1}) dS_{i-1}/dt),
+    S_i = sig(v_i, beta_i) = -l_i^beta_i sig(s_i, q_i) (q_i = e_i beta_i) differentiated by the chain
+    rule. s enters exactly (recomputed from z it would carry the working precision's error, which
+    |s_i|^(q_i - 1) magnifies near s_i = 0)."""
+    from fractions import Fraction
+
+    sg = lambda x, e: mp.sign(x) * abs(x) ** e if x != 0 else mp.mpf(0)  # noqa: E731
+    K = mp.mpf(Fraction(float(k)).numerator) / Fraction(float(k)).denominator
+    beta = [(2 + K) / (1 + i * K) - 1 for i in range(r)]
+    e = {i: (1 + i * K) / (1 - (i - 2) * K) for i in range(1, r + 1)}
+    l, s = [mp.mpf(float(g)) for g in gains], [mp.mpf(float(x)) for x in s]
+    z, v = [], mp.mpf(0)
+    for i in range(1, r + 1):
+        z.append(sg(s[i - 1] + sg(v, beta[i - 1]), 1 / beta[i - 1]))
+        v = -l[i - 1] * sg(s[i - 1], e[i])
+    V, dV, v, dS = mp.mpf(0), mp.mpf(0), mp.mpf(0), mp.mpf(0)
+    zdot = z[1:] + [-l[r - 1] * sg(s[r - 1], e[r])]
+    for i in range(1, r + 1):
+        b = beta[i - 1]
+        V += (abs(z[i - 1]) ** (b + 1) - abs(v) ** (b + 1)) / (b + 1) - sg(v, b) * (z[i - 1] - v)
+        dV += s[i - 1] * zdot[i - 1] - (z[i - 1] - v) * dS
+        if i == 1:  # S_1 = -l_1^beta_1 z_1 (beta_1 = 1/beta_0, so sig(s_1, q_1) = z_1)
+            dS = -(l[0] ** beta[1]) * z[1]
+        elif i < r:
+            q = e[i] * beta[i]
+            dS = -(l[i - 1] ** beta[i]) * q * abs(s[i - 1]) ** (q - 1) * (b * abs(z[i - 1]) ** (b - 1) * z[i] - dS)
+        v = -l[i - 1] * sg(s[i - 1], e[i])
+    return dV / V ** alpha
+
+
+def _zero_box_check(r, seed, boxes=12, points=128, exact=4):
+    """(boxes whose bound is below R somewhere, mpmath values outside the point enclosure, boxes,
+    mpmath points): _Ratio.boxes on thin boxes (half-widths 1e-12..1e-1) of every face that touch or
+    straddle s_j = 0 for one or two coordinates, at k = -1e-4/r and -0.99/r (near both ends of the
+    admissible range) with gains log-uniform in 0.1..1e5, against R at 16 corners and random points
+    whose zero coordinates are log-uniform down to 1e-300 or exactly 0: the guaranteed lower bounds
+    (_Ratio.points) at all of them, and mpmath (Hong's recursion, _mp_R, 60 digits) at the ``exact``
+    largest of each box, which must also lie in the points' enclosure."""
+    from fractions import Fraction
+
+    from ftstab_mj.control.certificate import _Ratio
+
+    rng = np.random.default_rng(seed)
+    below = outside = seen = mps = 0
+    d = r - 1
+    for kf in (1e-4, 0.99):
+        k = -kf / r
+        gains = tuple(float(g) for g in 10.0 ** rng.uniform(-1, 5, r))
+        obj = _Ratio(Terms(r, k, gains), "c")
+        a = Fraction(float(obj.a.mid))
+        with mp.workdps(60):
+            alpha = mp.mpf(a.numerator) / a.denominator
+        for face in range(r):
+            mid = rng.uniform(-1, 1, (boxes, d)) * 10.0 ** rng.uniform(-4, 0, (boxes, d))
+            half = 10.0 ** rng.uniform(-12, -1, (boxes, d))
+            rows = np.arange(boxes)
+            for j in (rng.integers(0, d, boxes), rng.integers(0, d, boxes)):
+                mid[rows, j] = rng.choice([-1.0, 0.0, 1.0, 0.3], boxes) * half[rows, j]
+            lo, hi = np.clip(mid - half, -1, 1), np.clip(mid + half, -1, 1)
+            with np.errstate(all="ignore"):
+                ub = obj.boxes(face, lo, hi)[0]
+            for b in range(boxes):
+                pts = rng.uniform(lo[b], hi[b], (points, d))
+                pts[:16] = np.where(rng.integers(0, 2, (16, d)), hi[b], lo[b])
+                for jj in np.nonzero((lo[b] <= 0) & (hi[b] >= 0))[0]:
+                    side = np.where(rng.uniform(size=points) < 0.5, lo[b, jj], hi[b, jj])
+                    tiny = rng.uniform(size=points) < 0.7
+                    pts[tiny, jj] = (np.sign(side) * np.abs(side) * 10.0 ** rng.uniform(-300, 0, points))[tiny]
+                    pts[16:24, jj] = 0.0
+                S = np.insert(pts, face, 1.0, axis=1)
+                with np.errstate(all="ignore"):
+                    at = obj.points(S)
+                seen += 1
+                top = np.argsort(-np.where(np.isnan(at.hi), -np.inf, at.hi))[:exact]
+                with mp.workdps(60):
+                    vals = [float(_mp_R(r, k, gains, S[q], alpha)) for q in top]
+                mps += len(vals)
+                below += int(max(np.nanmax(np.where(np.isnan(at.lo), -np.inf, at.lo)), max(vals)) > ub[b])
+                outside += sum(not (at.lo[q] <= x <= at.hi[q]) for q, x in zip(top, vals))
+    return below, outside, seen, mps
+
+
+@pytest.mark.parametrize("r", [3, 4, 5, 6])
+def test_box_bounds_hold_on_boxes_at_the_zeros_against_mpmath(r, monkeypatch):
+    """The box bound (every step of _Ratio.boxes in use) on adversarial boxes at the zeros of the
+    recursion variables (_zero_box_check: k near 0 and near -1/r, gains 0.1..1e5, zero coordinates
+    down to 1e-300) is never below R, by its own guaranteed point values and by Hong's recursion in
+    mpmath, which also lies in every point enclosure; and the check has teeth: with the mean-value
+    form's remainder terms dropped (a value at the centre, no bound) it finds boxes below R."""
+    import ftstab_mj.control.certificate as cm
+
+    below, outside, seen, mps = _zero_box_check(r, 300 + r)
+    assert (below, outside) == (0, 0), (below, outside, seen)
+    monkeypatch.setattr(cm, "_term", lambda g, lo, hi, c: np.zeros(np.shape(lo)))
+    wrong = _zero_box_check(r, 300 + r)[0]
+    assert wrong > 0
+    print(f"r = {r}: {seen} boxes, {mps} mpmath points: 0 below R; without the form's terms {wrong} below")
