@@ -938,13 +938,27 @@ def _mp_R(r, k, gains, s, alpha):
     return dV / V ** alpha
 
 
+def _mp_R_converged(r, k, gains, s, a) -> float:
+    """_mp_R at 60, 120, 240, ... digits until two agree to 1e-20 relative (alpha = the Fraction a):
+    near k = -1/r the terms reach l^beta (1e43 at r = 6, l = 4e4, beta = 9.5), and 60 digits were
+    off by 7e-6 relative at such a state (r = 6, k = -0.165)."""
+    prev = None
+    for dps in (60, 120, 240, 480):
+        with mp.workdps(dps):
+            val = _mp_R(r, k, gains, s, mp.mpf(a.numerator) / a.denominator)
+            if prev is not None and abs(val - prev) <= mp.mpf(10) ** -20 * abs(val):
+                return float(val)
+            prev = val
+    raise AssertionError(f"mpmath R not converged at 480 digits: {s.tolist()}")
+
+
 def _zero_box_check(r, seed, boxes=12, points=128, exact=4):
     """(boxes whose bound is below R somewhere, mpmath values outside the point enclosure, boxes,
     mpmath points): _Ratio.boxes on thin boxes (half-widths 1e-12..1e-1) of every face that touch or
     straddle s_j = 0 for one or two coordinates, at k = -1e-4/r and -0.99/r (near both ends of the
     admissible range) with gains log-uniform in 0.1..1e5, against R at 16 corners and random points
     whose zero coordinates are log-uniform down to 1e-300 or exactly 0: the guaranteed lower bounds
-    (_Ratio.points) at all of them, and mpmath (Hong's recursion, _mp_R, 60 digits) at the ``exact``
+    (_Ratio.points) at all of them, and mpmath (Hong's recursion, _mp_R_converged) at the ``exact``
     largest of each box, which must also lie in the points' enclosure."""
     from fractions import Fraction
 
@@ -958,8 +972,6 @@ def _zero_box_check(r, seed, boxes=12, points=128, exact=4):
         gains = tuple(float(g) for g in 10.0 ** rng.uniform(-1, 5, r))
         obj = _Ratio(Terms(r, k, gains), "c")
         a = Fraction(float(obj.a.mid))
-        with mp.workdps(60):
-            alpha = mp.mpf(a.numerator) / a.denominator
         for face in range(r):
             mid = rng.uniform(-1, 1, (boxes, d)) * 10.0 ** rng.uniform(-4, 0, (boxes, d))
             half = 10.0 ** rng.uniform(-12, -1, (boxes, d))
@@ -982,8 +994,7 @@ def _zero_box_check(r, seed, boxes=12, points=128, exact=4):
                     at = obj.points(S)
                 seen += 1
                 top = np.argsort(-np.where(np.isnan(at.hi), -np.inf, at.hi))[:exact]
-                with mp.workdps(60):
-                    vals = [float(_mp_R(r, k, gains, S[q], alpha)) for q in top]
+                vals = [_mp_R_converged(r, k, gains, S[q], a) for q in top]
                 mps += len(vals)
                 below += int(max(np.nanmax(np.where(np.isnan(at.lo), -np.inf, at.lo)), max(vals)) > ub[b])
                 outside += sum(not (at.lo[q] <= x <= at.hi[q]) for q, x in zip(top, vals))
