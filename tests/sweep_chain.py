@@ -86,11 +86,13 @@ class StopOnceTask(ChainTask):
 
 @dataclass(frozen=True)
 class KillAlwaysTask(ChainTask):
-    """A :class:`ChainTask` whose row ``row`` kills its own process (SIGKILL) every time it runs, after adding
-    a line to ``marker`` (so the file counts how often it ran): a row that crashes its worker."""
+    """A :class:`ChainTask` whose row ``row`` sends ``signal`` to its own process (SIGKILL: a row that crashes its
+    worker; SIGSTOP: one that stops it) every time it runs, after adding a line to ``marker`` (so the file counts
+    how often it ran)."""
 
     row: int = 3
     marker: str = ""
+    signal: str = "SIGKILL"
 
     def __call__(self, index, params) -> dict:
         import signal
@@ -98,5 +100,5 @@ class KillAlwaysTask(ChainTask):
         if index == self.row:
             with open(self.marker, "a") as f:
                 f.write(f"{os.getpid()}\n")
-            os.kill(os.getpid(), signal.SIGKILL)
+            os.kill(os.getpid(), getattr(signal, self.signal))
         return super().__call__(index, params)

@@ -427,6 +427,33 @@ def test_a_row_that_kills_its_worker_each_time_is_run_twice_then_lost_and_every_
     assert len(marker.read_text().split()) == 2  # in the first pool, then once in the fresh one
 
 
+STOPPER_ROW = """
+import sys
+from ftstab_mj.sweep import engine
+from tests.sweep_chain import KillAlwaysTask
+engine.WORKER_STOP_TIMEOUT, engine.WATCH_INTERVAL = 1.0, 0.1
+items = [(i, (("period", 0.01 * (1 + i % 5)),)) for i in range(40)]
+got = list(engine.execute(items, KillAlwaysTask(0.2, row=7, marker=sys.argv[1], signal="SIGSTOP"), "processes", 2))
+print(sorted(i for i, r in got if r is None))
+"""
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads the workers' states in /proc")
+def test_a_row_that_stops_its_worker_each_time_is_warned_about_as_rerun_then_as_lost(tmp_path):
+    """Row 7 stops (SIGSTOP) its worker every time it runs: killed after WORKER_STOP_TIMEOUT (1 s here) in the
+    first pool, whose rows run again on a fresh pool, and again in that one, whose unfinished rows are lost.
+    The two warnings say so in turn: the second does not promise a rerun that never comes."""
+    marker = tmp_path / "ran"
+    out = subprocess.run([sys.executable, "-c", STOPPER_ROW, str(marker)], capture_output=True, text=True,
+                         cwd=ROOT, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert 7 in json.loads(out.stdout.strip().splitlines()[-1])
+    assert len(marker.read_text().split()) == 2
+    warnings = [line for line in out.stderr.splitlines() if line.startswith("warning: sweep worker process")]
+    assert len(warnings) == 2, out.stderr
+    assert warnings[0].endswith("run again on a fresh pool (once)") and warnings[1].endswith("are lost (a resume runs them)")
+
+
 def test_a_local_dask_worker_stopped_mid_sweep_is_replaced_and_its_rows_run_again(tmp_path, monkeypatch):
     """A local cluster's worker stopped (SIGSTOP) at row 5 misses its heartbeats; with the cluster's short
     worker-ttl (WORKER_STOP_TIMEOUT; distributed's own floor: 10 heartbeats, 5 s) the scheduler has its nanny

@@ -64,7 +64,8 @@ WARM_UP_ROWS_PER_WORKER = 8  # rows a worker from which the parent runs the firs
 # a local cluster's worker not up within this (s) fails the start, which LocalCluster would otherwise wait
 # for without end (a worker process stopped while starting kept `ftstab sweep` waiting, silent, 605 s)
 WORKER_START_TIMEOUT = 60.0
-# a worker stopped (SIGSTOP, a debugger) mid-sweep for this long (s) is killed and its rows lost (processes),
+# a worker stopped (SIGSTOP, a debugger) mid-sweep for this long (s) is killed and its rows run again on a fresh
+# pool, once (processes),
 # or declared dead by the scheduler and its rows run again elsewhere (a local cluster's worker-ttl); a worker
 # running a row stays responsive (the rows run in its own thread on Dask; processes are watched from here)
 WORKER_STOP_TIMEOUT = 10.0
@@ -220,13 +221,14 @@ def _processes(items, task, workers, meanwhile=None) -> Iterator[tuple[int, dict
     # second broken pool leaves unfinished is lost (a row that kills its worker each time it runs)
     unfinished = yield from _pool(items, task, workers, meanwhile)
     if unfinished:
-        unfinished = yield from _pool(unfinished, task, workers)
+        unfinished = yield from _pool(unfinished, task, workers, last=True)
     yield from ((i, None) for i, _ in unfinished)
 
 
-def _pool(items, task, workers, meanwhile=None):
+def _pool(items, task, workers, meanwhile=None, last=False):
     """Yields (index, result) of the rows of ``items`` a pool of ``workers`` processes finished; returns the
-    items (index, params) of the chunks it did not finish (its pool broke: a worker died or was killed)."""
+    items (index, params) of the chunks it did not finish (its pool broke: a worker died or was killed).
+    last: the caller runs nothing again (a stopped worker's warning then says its pool's rows are lost)."""
     import multiprocessing
     import sys
     from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
@@ -256,8 +258,8 @@ def _pool(items, task, workers, meanwhile=None):
         pool.shutdown(wait=True, cancel_futures=True)
         for pid in watch.killed:
             print(f"warning: sweep worker process {pid} was stopped (SIGSTOP, Ctrl-Z or a debugger) for "
-                  f"{WORKER_STOP_TIMEOUT:g} s or more: killed; the rows its pool had not finished run again on a "
-                  f"fresh pool (once)", file=sys.stderr)
+                  f"{WORKER_STOP_TIMEOUT:g} s or more: killed; the rows its pool had not finished "
+                  + ("are lost (a resume runs them)" if last else "run again on a fresh pool (once)"), file=sys.stderr)
     return sorted(unfinished, key=lambda item: item[0])
 
 
