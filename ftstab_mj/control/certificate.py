@@ -49,10 +49,11 @@ CERTIFIED, NOT_CERTIFIED, UNDECIDED = "certified", "not certified", "undecided"
 # factors of Terms.evaluate (slot % SLOTS) that dV1/dt is affine in: |y_i|^(1 - 1/beta_{i-1}) and
 # |s_i|^(q_i - 1), which enter only dS_i/dt (step 5 of _Ratio.boxes)
 AFFINE_SLOTS = (0, 1)
-# held only for exponents this small: |x|^e on a box of width w that holds 0 ranges over [0, w^e],
-# which still spans half of [0, 1] at w = 1e-6 for e <= 0.05; a larger e shrinks with the box, and
-# holding it costs more than it saves (r = 3, k = -0.1: +20 % CPU for 1.5 % fewer boxes)
-HELD_EXPONENT = 0.03
+# held only for exponents this small (k ~ -0.002 .. -0.005): |x|^e on a box of width w that holds 0
+# ranges over [0, w^e], still [0, 0.93] at w = 1e-6 for e = 0.005, so bisection never narrows it; a
+# larger e shrinks with the box, and holding costs more than it saves (measured: r = 3, k = -0.1,
+# +20 % CPU for 1.5 % fewer boxes; r = 5, k = -0.01 and -0.02, half the boxes in 30 s, same c_lower)
+HELD_EXPONENT = 0.005
 HELD_SHARE = 0.5  # held only where their mean-value terms are at least this share of the excess
 MAX_HELD = 2  # of those, held at the ends of their ranges on one box: 2^MAX_HELD evaluations of it
 
