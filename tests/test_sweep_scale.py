@@ -517,3 +517,38 @@ def test_the_readme_cluster_commands_set_exactly_the_local_clusters_quiet_config
     out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, env=env, timeout=120)
     assert out.returncode == 0, out.stderr
     assert json.loads(out.stdout.strip().splitlines()[-1]) == engine.QUIET
+
+
+def test_the_stop_watch_counts_a_workers_stop_only_while_the_command_itself_was_watching(monkeypatch):
+    """_StopWatch kills a worker seen stopped for WORKER_STOP_TIMEOUT s of the command's own watching (checks every
+    WATCH_INTERVAL s): a worker stopped all along is killed at 10 s, and not earlier; but after a gap of 15 s
+    between two checks (the command itself was stopped, e.g. Ctrl-Z of the whole group, or starved) it does not
+    count that gap: a worker the command still reads as stopped just after its own resumption (the group's SIGCONT
+    not yet delivered to it) is killed only after 10 s more of watching, not at once."""
+    import multiprocessing
+
+    class Proc:
+        pid = 4242
+
+    kills, clock = [], [0.0]
+    monkeypatch.setattr(multiprocessing, "active_children", lambda: [Proc()])
+    monkeypatch.setattr(engine, "_stopped", lambda pid: True)
+    monkeypatch.setattr(os, "kill", lambda pid, sig: kills.append((pid, clock[0])))
+
+    def watch_until(watch, times):
+        for t in times:
+            clock[0] = t
+            watch.check(engine.WORKER_STOP_TIMEOUT)
+
+    step = engine.WATCH_INTERVAL
+    steady = engine._StopWatch(set(), clock=lambda: clock[0])
+    watch_until(steady, [k * step for k in range(round(engine.WORKER_STOP_TIMEOUT / step) + 3)])
+    assert kills == [(4242, engine.WORKER_STOP_TIMEOUT)]
+
+    kills.clear()
+    gap = engine._StopWatch(set(), clock=lambda: clock[0])
+    watch_until(gap, [0.0, step, step + 15.0])  # the command stopped 15 s between its second and third look
+    assert kills == []
+    resumed = step + 15.0
+    watch_until(gap, [resumed + k * step for k in range(1, round(engine.WORKER_STOP_TIMEOUT / step) + 3)])
+    assert kills == [(4242, resumed + engine.WORKER_STOP_TIMEOUT)]

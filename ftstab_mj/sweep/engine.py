@@ -185,10 +185,13 @@ class _StopWatch:
     """Kills a pool worker that stays stopped for WORKER_STOP_TIMEOUT s: ProcessPoolExecutor would wait for
     its chunk without end. Its death breaks the pool (BrokenProcessPool): the rows not finished run again
     on a fresh pool (_processes). The workers are this process's multiprocessing
-    children that were not there before the pool (``before``)."""
+    children that were not there before the pool (``before``). A stop counts only while this process
+    watched: after a gap of more than 3 WATCH_INTERVAL between two checks (this process was stopped too,
+    a Ctrl-Z of the whole group, or starved), the count starts again, so a worker read as stopped just
+    after the command's own resumption (the group's SIGCONT not yet delivered to it) is not killed."""
 
-    def __init__(self, before: set):
-        self.before, self.since, self.killed = before, {}, []
+    def __init__(self, before: set, clock: Callable[[], float] = time.monotonic):
+        self.before, self.since, self.killed, self.clock, self.last = before, {}, [], clock, None
 
     def check(self, timeout: float) -> None:
         """Kill every worker stopped for ``timeout`` s or more (0: every stopped worker, now)."""
@@ -196,7 +199,10 @@ class _StopWatch:
         import os
         import signal
 
-        now = time.monotonic()
+        now = self.clock()
+        if self.last is not None and now - self.last > 3 * WATCH_INTERVAL:  # we saw nothing meanwhile
+            self.since = dict.fromkeys(self.since, now)
+        self.last = now
         for proc in set(multiprocessing.active_children()) - self.before:
             if not _stopped(proc.pid):
                 self.since.pop(proc.pid, None)
