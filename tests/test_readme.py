@@ -51,3 +51,29 @@ def test_no_tracked_file_sends_users_to_the_teams_private_notes():
     found = [(path.decode(), name) for path in tracked if path and (ROOT / path.decode()).is_file()
              for name in names if name.encode() in (ROOT / path.decode()).read_bytes()]
     assert found == []
+
+
+def _design(*args):
+    import json
+
+    res = run_cli("design", *map(str, args), "--json")
+    assert res.returncode == 0, res.stderr
+    return json.loads(res.stdout)
+
+
+def test_the_readme_design_examples_are_what_design_prints():
+    """The figures of the README's `ftstab design` examples (max-c, min-time at r = 2, --u-max at r = 3)
+    are what the command prints today (it is deterministic): gains to their 5 printed digits, c_lower,
+    T(z0) and max |u0| to the digits the README gives. They had gone stale (6.8565 for 6.8587, ...)."""
+    text = " ".join((ROOT / "README.md").read_text().split())
+    num = r"([0-9]+(?:\.[0-9]+)?)"
+    m = re.search(rf"e\.g\. r = 2, k = -0\.2 gives gains {num}, {num} with c_lower = {num}", text)
+    d = _design("--r", 2, "--k", -0.2)
+    assert d["gains"] == [float(m[1]), float(m[2])] and f"{d['certificate']['c_lower']:.6g}" == m[3]
+    m = re.search(rf"r = 2, k = -0\.2, z0 = \(1, 0\) and \(0, 1\): gains {num}, {num}, T = {num} s", text)
+    d = _design("--r", 2, "--k", -0.2, "--objective", "min-time", "--z0", "1,0", "--z0", "0,1")
+    assert d["gains"] == [float(m[1]), float(m[2])] and f"{d['time_bound']:.5g}" == m[3]
+    m = re.search(rf"r = 3, k = -0\.1, U = 10, R = 1: gains {num}, {num}, {num}, c_lower = {num}, max \|u0\| = {num}", text)
+    d = _design("--r", 3, "--k", -0.1, "--u-max", 10, "--region", 1)
+    assert d["gains"] == [float(m[i]) for i in (1, 2, 3)]
+    assert f"{d['certificate']['c_lower']:.5g}" == m[4] and f"{d['u0_max']:.6g}" == m[5]

@@ -146,7 +146,7 @@ def _run_json(capsys, tmp_path, name, *sets):
 
 
 def test_a_limit_that_stops_the_branch_and_bound_before_c_is_proven_leaves_no_time_bound(tmp_path, capsys):
-    """cart_r3_robust (certified at 0.2 % within 2790 boxes) with metrics.certificate_boxes = 50:
+    """cart_r3_robust (certified at 0.2 % within 1336 boxes, c and c') with metrics.certificate_boxes = 50:
     the run's certificate is undecided, and its metrics say so: no T(z0), no guarantee, a note
     naming the limit; the log records the limit, so its replay recomputes the same metrics."""
     import json
