@@ -98,6 +98,34 @@ def test_same_inputs_give_bit_identical_samples():
         assert np.array_equal(a.loops["cart"][f], b.loops["cart"][f]), f
 
 
+def test_a_model_compiled_once_per_text_runs_as_a_fresh_compile():
+    """Plant.compile keeps compiled models by their MJCF text (a sweep's rows compile their plant
+    once per process): the same text gives the same MjModel, another step, integrator or userdata
+    size another one, at most COMPILED_MODELS are kept, and a run on a reused model has the samples
+    of a run on a fresh compile, bit for bit (the cache emptied before it)."""
+    from ftstab_mj.plants import base
+
+    plant = make_plant("cart_integrating")
+    m1, d1, x1 = plant.compile(0.001)
+    m2, d2, x2 = make_plant("cart_integrating").compile(0.001)
+    assert m2 is m1 and d2 is not d1 and x2 == x1
+    others = [plant.compile(0.002)[0], plant.compile(0.001, "rk4")[0], plant.compile(0.001, nuserdata=3)[0]]
+    assert len({id(m) for m in others + [m1]}) == 4
+    for i in range(base.COMPILED_MODELS + 2):
+        plant.compile(0.001 * (i + 3))
+    assert len(base._COMPILED) == base.COMPILED_MODELS and m1 not in base._COMPILED.values()
+
+    def run():
+        return simulate(make_plant("cart_integrating"), [LoopSpec("cart", controller=ADAPTIVE3, z0=(1, 0, 0),
+                        disturbance=Signal("random", amplitude=0.5, seed=7))], duration=1.0, period=0.01, physics_step=0.001)
+
+    base._COMPILED.clear()
+    fresh = run()
+    reused = run()
+    for f in LOOP_FIELDS:
+        assert np.array_equal(fresh.loops["cart"][f], reused.loops["cart"][f]), f
+
+
 @pytest.mark.parametrize("integrator", ["euler", "rk4"])
 def test_save_continue_restore_continue_is_identical(integrator):
     """The state saved between samples holds everything (phi_hat in userdata, the r = 3 disturbance

@@ -34,6 +34,9 @@ from ftstab_mj.validate import number_problem
 
 MODELS_DIR = data_dir("models")
 
+COMPILED_MODELS = 8  # compiled models kept per process, by MJCF text (Plant.compile)
+_COMPILED: dict[str, mujoco.MjModel] = {}
+
 INTEGRATORS = {"euler": mujoco.mjtIntegrator.mjINT_EULER, "rk4": mujoco.mjtIntegrator.mjINT_RK4,
                "implicitfast": mujoco.mjtIntegrator.mjINT_IMPLICITFAST}
 
@@ -110,9 +113,18 @@ class Plant:
         spec.option.timestep = float(physics_step)
         spec.option.integrator = INTEGRATORS[integrator]
         spec.nuserdata = int(nuserdata)
-        with control_callback(None):  # compiling runs a forward pass that would call it (callback.py)
-            model = spec.compile()
-            xml = spec.to_xml()
+        # the MJCF text is the whole spec (options and userdata size included), so two specs with
+        # the same text compile to the same model: a sweep's rows, which differ in initial states
+        # and signals, compile their plant once per process (0.14 ms for the text against 0.5 ms
+        # for a compile of the cart). Nothing writes into a compiled MjModel; each run has its MjData.
+        with control_callback(None):  # compiling runs a forward pass that would call it (callback.py),
+            xml = spec.to_xml()  # and so may writing the text of a spec not compiled yet
+            model = _COMPILED.pop(xml, None)
+            if model is None:
+                model = spec.compile()
+        _COMPILED[xml] = model  # the most recent last
+        while len(_COMPILED) > COMPILED_MODELS:
+            del _COMPILED[next(iter(_COMPILED))]
         self.bind(model)
         return model, mujoco.MjData(model), xml
 
