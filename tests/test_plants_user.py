@@ -3,7 +3,9 @@
 computation, the native callback against the Python one, the refusals through the real CLI, and a
 replay that needs no model file."""
 
+import os
 import shutil
+import time
 from pathlib import Path
 
 import gymnasium
@@ -196,3 +198,51 @@ def test_user_model_runs_from_a_path_relative_to_the_scenario_and_replays_withou
     from ftstab_mj.logs.reader import read_log
 
     assert read_log(log).info.scenario["plant"]["model"] == str((tmp_path / "reacher.xml").resolve())
+
+
+MESH_SLIDER_XML = """<mujoco>
+  <asset><mesh name="block" file="block.obj"/></asset>
+  <worldbody>
+    <body name="block">
+      <joint name="slide" type="slide" axis="1 0 0"/>
+      <geom type="mesh" mesh="block" density="1000"/>
+    </body>
+  </worldbody>
+  <actuator><motor name="push" joint="slide"/></actuator>
+</mujoco>
+"""
+
+
+def _block_obj(side: float) -> str:
+    """A closed box side x side x side/10 (m) as Wavefront OBJ: mass 100 side^3 kg at density 1000."""
+    h = side / 2
+    v = [(x, y, z) for x in (-h, h) for y in (-h, h) for z in (-h / 10, h / 10)]
+    faces = [(1, 3, 4, 2), (5, 6, 8, 7), (1, 2, 6, 5), (3, 7, 8, 4), (1, 5, 7, 3), (2, 4, 8, 6)]
+    return "".join(f"v {x} {y} {z}\n" for x, y, z in v) + "".join("f %d %d %d %d\n" % f for f in faces)
+
+
+def test_models_of_equal_text_but_other_meshes_are_never_confused(tmp_path):
+    """A compiled model is reused by its MJCF text only when the text determines it: the same text in
+    two folders whose meshes differ, or after its mesh file was edited, is another model, and so are its
+    bounds (cached too). A slider carrying a mesh box: M = its mass (100 side^3 kg, density 1000), so
+    gamma_m = gamma_M = b / M exactly (b = 1: a motor of gear 1). References: MuJoCo compiling each file
+    afresh, and the closed form."""
+    params = {"loops": {"x": {"joint": "slide", "actuator": "push", "u_max": 1.0}},
+              "workspace": {"slide": {"q": [-0.5, 0.5], "qd_max": 1.0}}, "grid": 3}
+    paths = []
+    for name, side in (("small", 0.1), ("large", 0.3)):
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "robot.xml").write_text(MESH_SLIDER_XML)
+        (tmp_path / name / "block.obj").write_text(_block_obj(side))
+        paths.append((tmp_path / name / "robot.xml", side))
+    paths.append((paths[0][0], 0.2))  # the small one's mesh edited in place
+    for path, side in paths:
+        if side == 0.2:  # a later edit (MuJoCo's own asset cache reads a file again when its mtime's second changed)
+            (path.parent / "block.obj").write_text(_block_obj(side))
+            os.utime(path.parent / "block.obj", (time.time() + 5, time.time() + 5))
+        plant = make_plant(str(path), params)
+        mass = plant.compile(0.001)[0].body_mass[1]
+        fresh = mujoco.MjModel.from_xml_path(str(path)).body_mass[1]
+        assert mass == fresh and mass == pytest.approx(100 * side ** 3, rel=1e-6), (path, side)
+        _, gamma_m, gamma_M = plant.true_bounds([(0.0, 0.0)], [(1.0, 1.0)])
+        np.testing.assert_allclose([gamma_m[0], gamma_M[0]], 1.0 / fresh, rtol=1e-12)

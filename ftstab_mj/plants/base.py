@@ -21,6 +21,7 @@ as many slots as its laws have state (ftstab_mj.sim).
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 from typing import Callable
 
@@ -36,6 +37,23 @@ MODELS_DIR = data_dir("models")
 
 COMPILED_MODELS = 8  # compiled models kept per process, by MJCF text (Plant.compile)
 _COMPILED: dict[str, mujoco.MjModel] = {}
+# an attribute naming a file the compiler reads: a mesh's, height field's or skin's file, a texture's
+# file, fileright, ..., fileback (an attribute value cannot hold a '"': the writer escapes it)
+_FILE_ATTRIBUTE = re.compile(r'\sfile[a-z]*="')
+
+
+def reads_files(xml: str) -> bool:
+    """Whether compiling the MJCF text ``xml`` reads files (meshes, height fields, skins, textures):
+    then the text alone does not determine the model (the same text in another folder, or after a
+    mesh was edited, compiles to another one)."""
+    return _FILE_ATTRIBUTE.search(xml) is not None
+
+
+def model_bytes(m: mujoco.MjModel) -> bytes:
+    """The compiled model as MuJoCo's binary MJB (deterministic: equal models, equal bytes)."""
+    buf = np.zeros(mujoco.mj_sizeModel(m), dtype=np.uint8)
+    mujoco.mj_saveModel(m, None, buf)
+    return buf.tobytes()
 
 INTEGRATORS = {"euler": mujoco.mjtIntegrator.mjINT_EULER, "rk4": mujoco.mjtIntegrator.mjINT_RK4,
                "implicitfast": mujoco.mjtIntegrator.mjINT_IMPLICITFAST}
@@ -117,14 +135,16 @@ class Plant:
         # the same text compile to the same model: a sweep's rows, which differ in initial states
         # and signals, compile their plant once per process (0.14 ms for the text against 0.5 ms
         # for a compile of the cart). Nothing writes into a compiled MjModel; each run has its MjData.
+        # Not so for a text that names files (a user model's meshes): those are read at each compile.
         with control_callback(None):  # compiling runs a forward pass that would call it (callback.py),
             xml = spec.to_xml()  # and so may writing the text of a spec not compiled yet
             model = _COMPILED.pop(xml, None)
             if model is None:
                 model = spec.compile()
-        _COMPILED[xml] = model  # the most recent last
-        while len(_COMPILED) > COMPILED_MODELS:
-            del _COMPILED[next(iter(_COMPILED))]
+        if not reads_files(xml):
+            _COMPILED[xml] = model  # the most recent last
+            while len(_COMPILED) > COMPILED_MODELS:
+                del _COMPILED[next(iter(_COMPILED))]
         self.bind(model)
         return model, mujoco.MjData(model), xml
 

@@ -35,6 +35,7 @@ import mujoco
 import numpy as np
 
 from ftstab_mj.errors import ParameterError
+from ftstab_mj.plants.base import model_bytes, reads_files
 
 DQ = 1e-5  # rad or m: central-difference step in q for the r = 3 derivative terms
 _CACHE: dict = {}  # (model, workspace) -> tables; a sweep over parameters keeps at most 32
@@ -139,8 +140,9 @@ def tables(plant) -> dict:
     (Gq points), F = M^-1 (Gq, nv, nv) and the phi part that depends on the state, maxed over the
     velocities (Gq, n)."""
     ws = plant.workspace
-    xml = plant.compile(0.001)[2]
-    key = (hashlib.sha256(xml.encode()).hexdigest(), ws.key(), plant.r, tuple(plant.dof_ids.tolist()))
+    m, _, xml = plant.compile(0.001)
+    model = xml.encode() + (model_bytes(m) if reads_files(xml) else b"")  # a mesh's file is not in the text
+    key = (hashlib.sha256(model).hexdigest(), ws.key(), plant.r, tuple(plant.dof_ids.tolist()))
     if key in _CACHE:
         return _CACHE[key]
     t0 = time.perf_counter()
