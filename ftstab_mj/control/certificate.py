@@ -55,6 +55,13 @@ AFFINE_SLOTS = (0, 1)
 # larger e shrinks with the box, and holding costs more than it saves (measured: r = 3, k = -0.1,
 # +20 % CPU for 1.5 % fewer boxes; r = 5, k = -0.01 and -0.02, half the boxes in 30 s, same c_lower)
 HELD_EXPONENT = 0.005
+# step 6 of _Ratio.boxes: the factors whose argument is a box coordinate s_i, sig(s_i, e_i) (in v_i) and
+# sig(s_i, q_i) (in S_i), whose remainders are bounded together with s_i
+PAIRED_SLOTS = (2, 5)
+PAIR_SHARE = 0.1  # paired only where the remainder's term is at least this share of the form's terms
+# and only for k this close to 0 (r = 6, k ~ -0.002 .. -0.005, where it was measured to tighten the
+# bound; at r = 4 and 5, k = -0.02 it cost 10-15 % CPU per box for the same boxes and c_lower)
+PAIR_K = 0.005
 HELD_SHARE = 0.5  # held only where their mean-value terms are at least this share of the excess
 MAX_HELD = 2  # of those, held at the ends of their ranges on one box: 2^MAX_HELD evaluations of it
 
@@ -340,7 +347,8 @@ class _Ratio:
         of R at each centre (n,), centres (n, r)).
 
         The upper bound is the smallest of two interval enclosures of R, a mean-value form, and the
-        largest of the mean-value forms with some remainders held at the ends of their ranges.
+        largest of the mean-value forms with some remainders held at the ends of their ranges (each
+        mean-value form with the pairs of step 6).
         Every step below is proven; the soundness of each is stated with what it rests on.
 
         1. The enclosure E1 = Terms.evaluate over the box in intervals. Each quantity is enclosed by
@@ -389,6 +397,26 @@ class _Ratio:
            the points D.lo or D.hi (the floats of the outward enclosure D, so [D.lo, D.hi] still holds
            delta(s); the evaluation at a point is outward-rounded as any other), and the largest of
            the 2^m bounds bounds R on the box. The kind "cp" (|dV1/dz_r| = |s_r|) holds none of them.
+        6. Paired remainders (``_pair``). The factors sig(s_i, e_i) (in v_i) and sig(s_i, q_i) (in
+           S_i) of PAIRED_SLOTS have as argument the box coordinate s_i itself, so at every point
+           (s, delta(s)) that steps 3 and 5 bound, the remainder d of such a factor is delta(s_i) =
+           phi(s_i) - a s_i, a function of the coordinate, not a free variable. In step 3's equality
+           F(p) - F(c) = sum_j gam_j (p_j - c_j) (gam in G, at a point of the segment), write for the
+           pair (x = s_i, d) and any floats g, h (the midpoints of G_x, G_d):
+               gam_x (x - c_x) + gam_d (d - c_d) = psi(x) + (gam_x - g)(x - c_x) + (gam_d - h)(d - c_d),
+               psi(x) = g (x - c_x) + h (delta(x) - c_d) = h (phi(x) - b x) + (g - h (a - b)) x - g c_x - h c_d
+           (an identity for every float b; b = a - g / h makes the middle coefficient ~0). Where
+           d = delta(x), psi(x) is at most the upper end of the interval evaluation
+           h D_b + (g - h (a - b)) X - g c_x - h c_d, D_b = affine_remainder(X, e, b) an enclosure of
+           phi(t) - b t on X (as in step 2); the other two parts are at most the terms of step 3
+           with G_x - g and G_d - h in place of G_x, G_d (d = delta(x) is in D). So the sum of these
+           three bounds the pair's two terms at every point with d = delta(s_i), which includes each
+           (s, delta(s)) and each point that step 5 bounds (it holds only slots AFFINE_SLOTS); it
+           replaces them where it is smaller, one factor per coordinate (the one that gains most;
+           used only for -k <= PAIR_K and where the remainder's term is PAIR_SHARE of the terms or
+           more: speed only, any choice is sound).
+           The gain: the decoupled terms charge h's full range of delta and x's end at once; the
+           pair's third parts are products of two widths (second order) and psi is nearly exact.
         tests/test_control_certificate.py checks steps 2-3 against F at random points of X x D off
         the manifold (the manifold's identities taken off it fail it, and so does F with slopes 10 %
         off its gradient's); tests/test_interval_soundness.py checks D against mpmath at the exact
@@ -442,22 +470,67 @@ class _Ratio:
         mv = self.at(face, cb, centres).hi.copy()
         base = mv.copy()
         score = np.zeros((n, d))
+        terms = {}  # variable (F.g's index) -> its term of the form (n,)
         for jj, g in enumerate(F.g):
             if g is None:
                 continue
             if jj < d:
-                term = _term(g, lo[:, jj], hi[:, jj], cb[:, jj])
+                terms[jj] = _term(g, lo[:, jj], hi[:, jj], cb[:, jj])
                 score[:, jj] += g.mag() * (hi[:, jj] - lo[:, jj])  # the midpoint form's term (x2)
             elif jj - d in phis:
                 val = phis[jj - d].rng
-                term = _term(g, val.lo, val.hi, centres[jj - d][2])
+                terms[jj] = _term(g, val.lo, val.hi, centres[jj - d][2])
                 w = g.mag() * (val.hi - val.lo)
                 score += share[jj - d] * np.where(np.isfinite(w), w, 0.0)[:, None]
-            else:
-                continue
+        self._pair(face, lo, hi, F, phis, cb, centres, terms)
+        for term in terms.values():
             mv = _up(mv + term)
         self._excess = mv - base  # the mean-value form's terms (for the choice of step 5's boxes)
         return F.v.hi.copy(), mv, score, F, phis
+
+    def _pair(self, face: int, lo, hi, F, phis, cb, centres, terms):
+        """Step 6 of ``boxes``: on each box where it is smaller, the terms of a coordinate s_i and of
+        the remainder of one factor of s_i itself (PAIRED_SLOTS) replaced by their joint bound
+        (_paired_term): ``terms`` {F.g index: (n,)} updated in place, the pair's bound in the
+        coordinate's entry and 0 in the remainder's. One remainder per coordinate and box."""
+        d = self.r - 1
+        if not -self.t.k <= PAIR_K:
+            return
+        total = np.zeros(len(lo))
+        for term in terms.values():
+            total = total + np.where(np.isfinite(term), np.abs(term), 0.0)
+        for i in range(2, self.r + 1):
+            jj = i - 1 - (i - 1 > face)  # the box coordinate s_i (none on the face s_i = 1)
+            if i - 1 == face or F.g[jj] is None or jj not in terms:
+                continue
+            best, pick, saving = None, None, np.zeros(len(lo))
+            for j in PAIRED_SLOTS:
+                slot = SLOTS * (i - 2) + j
+                if slot not in phis or (d + slot) not in terms:
+                    continue
+                e = self.t.e[i] if j == 2 else self.t.q[i]  # sig(s_i, e_i) in v_i, sig(s_i, q_i) in S_i
+                near, a, D = phis[slot]
+                # only where the remainder's term is a share of the form's terms: elsewhere the pair
+                # cannot gain much (speed only: any choice of boxes is sound)
+                rows = np.nonzero(near & ~(terms[d + slot] < PAIR_SHARE * total))[0]
+                if not len(rows):
+                    continue
+                new = np.full(len(lo), np.inf)
+                new[rows] = _paired_term(_sub(F.g[jj], rows), _sub(F.g[d + slot], rows), lo[rows, jj], hi[rows, jj],
+                                         cb[rows, jj], a[rows], _sub(D, rows), centres[slot][2][rows], e, "sig")
+                with np.errstate(invalid="ignore"):
+                    gain = np.where(np.isfinite(new), (terms[jj] + terms[d + slot]) - new, 0.0)
+                better = gain > saving
+                if better.any():
+                    best = new if best is None else np.where(better, new, best)
+                    pick = np.where(better, slot, -1 if pick is None else pick)
+                    saving = np.where(better, gain, saving)
+            if best is None:
+                continue
+            for slot in np.unique(pick[pick >= 0]):
+                use = pick == slot
+                terms[jj] = np.where(use, best, terms[jj])
+                terms[d + slot] = np.where(use, 0.0, terms[d + slot])
 
     def _exponent(self, slot: int) -> Exp:
         """The exponent of an affine factor's slot (AFFINE_SLOTS; Terms.evaluate's numbering)."""
@@ -545,6 +618,31 @@ def _baumann(g, lo, hi, mid):
     c = np.where(a >= 0, hi, np.where(b <= 0, lo, c))
     c = np.where(np.isfinite(c) & np.isfinite(a) & np.isfinite(b), c, mid)
     return np.clip(c, lo, hi)
+
+
+def _sub(x: Iv, rows) -> Iv:
+    """The rows ``rows`` of an Iv of shape (n,) (a scalar Iv stays as it is)."""
+    return Iv(x.lo[rows] if np.ndim(x.lo) else x.lo, x.hi[rows] if np.ndim(x.hi) else x.hi)
+
+
+def _paired_term(gj, ga, lo, hi, cj, a, D, ca, e, op):
+    """An upper bound of gj (x - cj) + ga (d - ca) over x in [lo, hi], d = phi(x) - a x, gj in the
+    Iv gj, ga in the Iv ga (phi = sig(., e) or |.|^e as op): step 6 of _Ratio.boxes. With floats
+    g = mid gj, h = mid ga and any float slope b, it is h (phi(x) - b x) + (g - h (a - b)) x - g cj -
+    h ca (an identity) plus (gj - g)(x - cj) + (ga - h)(d - ca), each part bounded on its own; inf
+    where that is not a number."""
+    with np.errstate(all="ignore"):
+        g, h = 0.5 * (gj.lo + gj.hi), 0.5 * (ga.lo + ga.hi)
+        ok = np.isfinite(g) & np.isfinite(h)
+        g, h = np.where(ok, g, 0.0), np.where(ok, h, 0.0)
+        b = np.where(h != 0, a - g / np.where(h != 0, h, 1.0), a)
+        b = np.where(np.isfinite(b), b, a)
+        X = Iv(lo, hi)
+        G, H = Iv(g), Iv(h)
+        eps = G - H * (Iv(a) - Iv(b))
+        lin = H * affine_remainder(X, e, op, b) + eps * X - G * Iv(cj) - H * Iv(ca)
+        out = _up(_up(lin.hi + _term(gj - G, lo, hi, cj)) + _term(ga - H, D.lo, D.hi, ca))
+    return np.where(ok & ~np.isnan(out), out, np.inf)
 
 
 def _term(g, lo, hi, c):

@@ -48,7 +48,7 @@ class Terms:
 
     def __init__(self, r: int, k: float, gains):
         F = Fraction(float(k))
-        self.r = r
+        self.r, self.k = r, float(k)
         p = {i: 1 + (i - 1) * F for i in range(1, r + 2)}
         beta = [(2 + F) / p[i + 1] - 1 for i in range(r)]  # beta_0..beta_{r-1}
         self.beta = [exp_of(b) for b in beta]
