@@ -69,3 +69,34 @@ def test_certified_gains_keep_V1_decreasing_on_the_zero_sets():
                 V, dV, _, _ = t.evaluate([s2[ok, j] for j in range(r)])
                 worst = max(worst, float(np.nanmax(dV / V ** t.alpha.mid)))
         assert worst < -c_lower, (r, k, worst, c_lower)
+
+
+def test_certify_refutes_those_gains_on_the_zero_set_with_a_guaranteed_witness():
+    """certify looks at the zero sets z_i = 0 (i = 2..r-1) before its branch and bound, and a state
+    there with a guaranteed dV1/dt >= 0 refutes the gains at once: the r = 6 row is "not certified"
+    (it was undecided after any budget), c_upper <= -0.2 (measured -0.259), with a witness on
+    {V1 = 1} that has one z_i exactly 0 and where the controller's own Lie derivative is > 0.2 too.
+    The k = -0.005 and -0.01 gains of the designer's first searches are refuted the same way
+    (measured c_upper -0.246 and -0.075 .. -0.181 over seeds)."""
+    h = HongController(R6, K6, GAINS6, check_hurwitz=False)
+    cert = certify(h, budget=20.0)
+    assert cert.status == "not certified" and cert.c_upper <= -0.2, (cert.status, cert.c_upper)
+    w = np.array([cert.witness])
+    assert (w[0, 1:-1] == 0.0).any() and abs(h.V1(w)[0] - 1.0) < 1e-9, cert.witness
+    assert _ratio(h, w)[0] > 0.2
+    assert cert.boxes <= 100  # refuted before the branch and bound splits anything
+
+
+def test_the_zero_set_refutation_leaves_certified_gains_as_they_were(monkeypatch):
+    """For gains with V1 decreasing on the zero sets the refutation is not used: certify's answer
+    (status, c_lower, c_upper, boxes, witness) is the same with the zero sets searched or not
+    (r = 3 NOTES gains, r = 4 designed)."""
+    import ftstab_mj.control.certificate as cm
+
+    for r, k, gains in ((3, -0.1, (1.0, 1.7, 5.0)), (4, -0.05, (0.83467, 1.4216, 2.8157, 100.0))):
+        h = HongController(r, k, gains)
+        a = certify(h)
+        with monkeypatch.context() as m:
+            m.setattr(cm, "_zero_set_witness", lambda *args: None)
+            b = certify(h)
+        assert (a.status, a.c_lower, a.c_upper, a.boxes, a.witness) == (b.status, b.c_lower, b.c_upper, b.boxes, b.witness)

@@ -173,6 +173,13 @@ def V1_enclosure(r: int, k: float, gains, z) -> Iv:
     each z_i that Terms.z_of would rebuild from s (sig(y_i, 1/beta), Hoelder: it would turn the few
     ulps of s into ~1e-10) taken as the float it is. What a guaranteed T(z0) needs
     (Certificate.time_bound of the enclosure)."""
+    return _enclosure_at(r, k, gains, z)[0]
+
+
+def _enclosure_at(r: int, k: float, gains, z):
+    """(V1, dV1/dt, dV1/dz_r) enclosed at the float states z (n, r), each an Iv (n,): as V1_enclosure,
+    with the factor |y_i|^(1 - 1/beta_{i-1}) = |z_i|^(beta_{i-1} - 1) of dS_i/dt taken from the float
+    z_i too (from y_i's enclosure, which holds 0 wherever z_i = 0, it would be nearly [0, 1])."""
     t = _terms(int(r), float(k), tuple(float(g) for g in gains))
     z = np.atleast_2d(np.asarray(z, dtype=float))
     s, S = [], None
@@ -186,12 +193,75 @@ def V1_enclosure(r: int, k: float, gains, z) -> Iv:
             elif i <= r - 1:
                 S = -(t.lb[i] * si.sig(t.q[i]))
 
-        def exact_z(slot, x, e, op):  # slot SLOTS (i - 2) + 3 is z_i (Terms.evaluate)
+        def exact_z(slot, x, e, op):  # Terms.evaluate's slots SLOTS (i - 2) + 3 (z_i) and + 0 (that factor)
+            i = slot // SLOTS + 2
             if slot % SLOTS == 3:
-                return Iv(z[:, slot // SLOTS + 1])
+                return Iv(z[:, i - 1])
+            if slot % SLOTS == 0:
+                return Iv(z[:, i - 1]).pabs(t.beta_m1[i - 1])
             return _power(slot, x, e, op)
 
-        return t.evaluate(s, exact_z)[0]
+        return t.evaluate(s, exact_z)[:3]
+
+
+ZERO_SET_STATES = 2_000  # face states per face and zero set in certify's refutation (_zero_set_witness)
+ZERO_SET_CLIMBS = 32  # of them, the best climbed on the set
+
+
+def _zero_set_witness(obj: "_Ratio", hong: HongController, seed: int):
+    """(guaranteed lower bound of R = dV1/dt / V1^alpha, state z (r,)) at the best of the face states
+    put on a zero set z_i = 0 (i = 2..r - 1; ZERO_SET_STATES per face and set), or None (r <= 2).
+
+    For k < 0 the factor beta |z_i|^(beta - 1) of dS_i/dt (beta = beta_{i-1} > 1, beta - 1 ~ -k) is 0
+    on z_i = 0 and near 1 once |z_i| > ~1e-30, so there dV1/dt is that of the law without the term
+    beta z_{i+1}, and it can be positive where it is negative everywhere else: a layer ~1e-50 thin
+    that no sampled state reaches (measured: r = 6, k = -0.002, gains 0.62 .. 1e5: R = +0.263 at
+    z_4 = 0, +0.080 at |z_4| = 1e-60, -0.32 at 1e-10). A face state s is put on the set by s_i =
+    -S_{i-1} (y_i = 0, so z_i = 0 exactly), the best are climbed on the set, and R is enclosed at the
+    exact state (_enclosure_at), so the value is guaranteed. Its own generator (seed, 1), so the witness search's states are unchanged."""
+    r = obj.r
+    if r <= 2:
+        return None
+    rng = np.random.default_rng((seed, 1))
+    t = obj.t
+
+    def onto(s, i):  # y_i = s_i + S_{i-1} = 0: S_{i-1} depends on s_1 .. s_{i-1} only
+        s[:, i - 1] = -t.z_of([s[:, j] for j in range(r)])[2][i - 1]
+        return s
+
+    def R(s):
+        with np.errstate(all="ignore"):
+            V, dV, _, _ = t.evaluate([s[:, j] for j in range(r)])
+            f = dV / V ** t.alpha.mid
+        return np.where(np.isfinite(f), f, -np.inf)
+
+    best, arg = -np.inf, None
+    for i in range(2, r):
+        with np.errstate(all="ignore"):
+            s = onto(face_points(r, ZERO_SET_STATES, rng), i)
+            # a random local ascent of the float R on the set from its best states (the face
+            # coordinate and s_i held: s_i is a function of the others there)
+            s = s[np.argsort(R(s))[-ZERO_SET_CLIMBS:]]
+            f = R(s)
+            free = np.abs(s) < 1.0
+            free[:, i - 1] = False
+            for step in 0.3 * 0.9 ** np.arange(60):
+                trial = onto(np.clip(s + free * rng.normal(0.0, step, s.shape), -1.0, 1.0), i)
+                ft = R(trial)
+                up = ft > f
+                s[up], f[up] = trial[up], ft[up]
+            s = np.concatenate([s, [_zero_set_polish(s[j], i, onto, R) for j in np.argsort(f)[-2:]]])
+            z = np.stack(t.z_of([s[:, j] for j in range(r)])[0], axis=-1)
+        z[:, i - 1] = 0.0
+        z = z[np.isfinite(z).all(axis=1)]
+        V, dV, sr = _enclosure_at(r, hong.k, hong.gains, z)
+        with np.errstate(all="ignore"):
+            lo = obj._ratio(V, dV, sr).lo
+        lo = np.where(np.isnan(lo), -np.inf, lo)
+        j = int(np.argmax(lo))
+        if lo[j] > best:
+            best, arg = float(lo[j]), z[j].copy()
+    return None if arg is None else (best, arg)
 
 
 def unit_level_set_points(hong: HongController, n: int, rng: np.random.Generator) -> np.ndarray:
@@ -684,6 +754,25 @@ def _seed_points(obj: _Ratio, samples: int, rng) -> np.ndarray:
     return np.concatenate([z, _polish(obj, z[np.argsort(obj.floats(z))[-4:]])])
 
 
+def _zero_set_polish(row, i, onto, R, iters=400):
+    """Nelder-Mead ascent of the float R on the zero set y_i = 0 from the face state ``row`` (r,):
+    the free coordinates are those with |s_j| < 1 but s_i (``onto`` sets it)."""
+    from ftstab_mj.control.design import nelder_mead
+
+    free = np.nonzero(np.abs(row) < 1.0)[0]
+    free = free[free != i - 1]
+    if not len(free):
+        return row
+
+    def state(x):
+        s = row.copy()
+        s[free] = np.clip(x, -1.0, 1.0)
+        return onto(s[None, :], i)
+
+    x, _ = nelder_mead(lambda x: -float(R(state(x))[0]), row[free], step=0.05, iters=iters)
+    return state(x)[0]
+
+
 def _polish(obj: _Ratio, z, iters=400):
     """Nelder-Mead ascent of the float R from each row of z (n, r), its largest coordinate held:
     the simplex is affine invariant, so it climbs the narrow ridges of gains spanning many decades
@@ -723,7 +812,7 @@ def _climb(obj: _Ratio, z, rng, rounds=80, step0=0.3):
 
 
 def _maximise(obj: _Ratio, seeds, rtol, deadline, stop_if_positive, progress=None, rng=None,
-              max_boxes=DEFAULT_MAX_BOXES) -> _Max:
+              max_boxes=DEFAULT_MAX_BOXES, proven=-np.inf) -> _Max:
     """Branch and bound for max R over the r faces (see the module docstring).
 
     Every box has an upper bound ub. A box with ub <= best + rtol |best| (best: the guaranteed
@@ -745,6 +834,7 @@ def _maximise(obj: _Ratio, seeds, rtol, deadline, stop_if_positive, progress=Non
     lb_seed = np.where(np.isnan(lb_seed), -np.inf, lb_seed)
     i = int(np.argmax(lb_seed))
     best, wit = float(lb_seed[i]), seeds[i].copy()
+    best = max(best, float(proven))  # a guaranteed value of R at a state the caller found (and names)
     if d == 0:  # r = 1: the sphere is the point z_1 = 1
         R = obj.points(np.ones((1, 1)))
         return _Max(float(R.hi[0]), float(R.lo[0]), np.ones(1), 1, True)
@@ -880,8 +970,14 @@ def certify(hong: HongController, samples: int = DEFAULT_SAMPLES, seed: int = DE
     obj = _Ratio(terms, "c")
     # a budget keeps a tenth for c' (Theorem 3 needs it once c > 0 is proven)
     deadline_c = deadline if budget is None else t0 + 0.9 * budget
-    mc = _maximise(obj, _seed_points(obj, samples, rng), rtol, deadline_c, True, say, rng, max_boxes)
+    # a state on a zero set with dV1/dt >= 0 refutes the gains at once (only then is it used: the
+    # search and the B&B of every other gain set are as they were)
+    zero = _zero_set_witness(obj, hong, seed)
+    refuted = zero is not None and zero[0] >= 0.0
+    mc = _maximise(obj, _seed_points(obj, samples, rng), rtol, deadline_c, True, say, rng, max_boxes,
+                   zero[0] if refuted else -np.inf)
     c_lower, c_upper = -mc.upper, -mc.lower
+    on_zero_set = refuted and mc.lower == zero[0]  # the witness is the zero set's state
     status = CERTIFIED if c_lower > 0 else NOT_CERTIFIED if c_upper <= 0 else UNDECIDED
     mp = None
     if status == CERTIFIED:  # c' only matters (Theorem 3) where the certificate holds
@@ -890,7 +986,7 @@ def certify(hong: HongController, samples: int = DEFAULT_SAMPLES, seed: int = DE
                        None if say is None else (lambda b, t, n: say(b, t, n, "c'")), rng, max_boxes)
     k = hong.k
     with np.errstate(all="ignore"):
-        zw = np.array([float(x) for x in terms.z_of([float(x) for x in mc.witness])[0]])
+        zw = zero[1] if on_zero_set else np.array([float(x) for x in terms.z_of([float(x) for x in mc.witness])[0]])
         wit = _onto_unit_level(hong, zw[None, :])[0]
     note = {CERTIFIED: "k = 0: linear law, exponential (not finite-time) convergence" if k == 0 else "",
             NOT_CERTIFIED: "dV1/dt >= 0 at the witness state on {V1 = 1}: no finite-time certificate for these gains",
