@@ -175,8 +175,9 @@ def cmd_design(args) -> int:
         print(f"  max |u0| on the region = {found.u0_max:.6g} <= {args.u_max:g}   (exact: attained at the vertex "
               f"z = ({', '.join(f'{x:g}' for x in region)}), u0 being monotone in every z_i)")
     if not found.certified:  # no snippet: a scenario would claim a bound these gains do not have
-        print(f"  no candidate certified ({cert.status}): the gains above are the best estimate, not a result "
-              "(raise --max-boxes / --budget, or try k nearer 0 or a larger --gain-max)")
+        hint = ("refuted: dV1/dt >= 0 at the witness, so more boxes would not help; try another k or gain range"
+                if cert.status == "not certified" else "raise --max-boxes / --budget, or try k nearer 0 or a larger --gain-max")
+        print(f"  no candidate certified ({cert.status}): the gains above are the best estimate, not a result ({hint})")
         return 1
     print("scenario snippet ([loops.<name>.controller]):")
     print(f"  k = {args.k!r}\n  gains = [{', '.join(repr(g) for g in gains)}]")

@@ -217,6 +217,7 @@ def test_cli_design_uncertified_prints_no_snippet():
     assert res.returncode == 1, res.stderr
     assert "no candidate certified" in res.stdout and "gains = [" not in res.stdout
     assert "status: certified" not in res.stdout
+    assert "(undecided)" in res.stdout and "raise --max-boxes" in res.stdout  # undecided: more work may decide
 
 
 @pytest.mark.parametrize("args, needle", [
