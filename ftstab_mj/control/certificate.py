@@ -173,14 +173,14 @@ def V1_enclosure(r: int, k: float, gains, z) -> Iv:
     each z_i that Terms.z_of would rebuild from s (sig(y_i, 1/beta), Hoelder: it would turn the few
     ulps of s into ~1e-10) taken as the float it is. What a guaranteed T(z0) needs
     (Certificate.time_bound of the enclosure)."""
-    return _enclosure_at(r, k, gains, z)[0]
+    return _enclosure_at(_terms(int(r), float(k), tuple(float(g) for g in gains)), z)[0]
 
 
-def _enclosure_at(r: int, k: float, gains, z):
-    """(V1, dV1/dt, dV1/dz_r) enclosed at the float states z (n, r), each an Iv (n,): as V1_enclosure,
-    with the factor |y_i|^(1 - 1/beta_{i-1}) = |z_i|^(beta_{i-1} - 1) of dS_i/dt taken from the float
-    z_i too (from y_i's enclosure, which holds 0 wherever z_i = 0, it would be nearly [0, 1])."""
-    t = _terms(int(r), float(k), tuple(float(g) for g in gains))
+def _enclosure_at(t: Terms, z):
+    """(V1, dV1/dt, dV1/dz_r) of Terms t enclosed at the float states z (n, r), each an Iv (n,): as
+    V1_enclosure, with the factor |y_i|^(1 - 1/beta_{i-1}) = |z_i|^(beta_{i-1} - 1) of dS_i/dt taken
+    from the float z_i too (from y_i's enclosure, which holds 0 wherever z_i = 0, it is nearly [0, 1])."""
+    r = t.r
     z = np.atleast_2d(np.asarray(z, dtype=float))
     s, S = [], None
     with np.errstate(all="ignore"):
@@ -208,7 +208,7 @@ ZERO_SET_STATES = 2_000  # face states per face and zero set in certify's refuta
 ZERO_SET_CLIMBS = 32  # of them, the best climbed on the set
 
 
-def _zero_set_witness(obj: "_Ratio", hong: HongController, seed: int):
+def _zero_set_witness(obj: "_Ratio", seed: int):
     """(guaranteed lower bound of R = dV1/dt / V1^alpha, state z (r,)) at the best of the face states
     put on a zero set z_i = 0 (i = 2..r - 1; ZERO_SET_STATES per face and set), or None (r <= 2).
 
@@ -218,7 +218,8 @@ def _zero_set_witness(obj: "_Ratio", hong: HongController, seed: int):
     that no sampled state reaches (measured: r = 6, k = -0.002, gains 0.62 .. 1e5: R = +0.263 at
     z_4 = 0, +0.080 at |z_4| = 1e-60, -0.32 at 1e-10). A face state s is put on the set by s_i =
     -S_{i-1} (y_i = 0, so z_i = 0 exactly), the best are climbed on the set, and R is enclosed at the
-    exact state (_enclosure_at), so the value is guaranteed. Its own generator (seed, 1), so the witness search's states are unchanged."""
+    exact state (_enclosure_at), so the value is guaranteed. Its own generator (seed, 1), so the
+    witness search's states are unchanged."""
     r = obj.r
     if r <= 2:
         return None
@@ -229,12 +230,7 @@ def _zero_set_witness(obj: "_Ratio", hong: HongController, seed: int):
         s[:, i - 1] = -t.z_of([s[:, j] for j in range(r)])[2][i - 1]
         return s
 
-    def R(s):
-        with np.errstate(all="ignore"):
-            V, dV, _, _ = t.evaluate([s[:, j] for j in range(r)])
-            f = dV / V ** t.alpha.mid
-        return np.where(np.isfinite(f), f, -np.inf)
-
+    R = obj.floats
     best, arg = -np.inf, None
     for i in range(2, r):
         with np.errstate(all="ignore"):
@@ -254,7 +250,7 @@ def _zero_set_witness(obj: "_Ratio", hong: HongController, seed: int):
             z = np.stack(t.z_of([s[:, j] for j in range(r)])[0], axis=-1)
         z[:, i - 1] = 0.0
         z = z[np.isfinite(z).all(axis=1)]
-        V, dV, sr = _enclosure_at(r, hong.k, hong.gains, z)
+        V, dV, sr = _enclosure_at(t, z)
         with np.errstate(all="ignore"):
             lo = obj._ratio(V, dV, sr).lo
         lo = np.where(np.isnan(lo), -np.inf, lo)
@@ -972,7 +968,7 @@ def certify(hong: HongController, samples: int = DEFAULT_SAMPLES, seed: int = DE
     deadline_c = deadline if budget is None else t0 + 0.9 * budget
     # a state on a zero set with dV1/dt >= 0 refutes the gains at once (only then is it used: the
     # search and the B&B of every other gain set are as they were)
-    zero = _zero_set_witness(obj, hong, seed)
+    zero = _zero_set_witness(obj, seed)
     refuted = zero is not None and zero[0] >= 0.0
     mc = _maximise(obj, _seed_points(obj, samples, rng), rtol, deadline_c, True, say, rng, max_boxes,
                    zero[0] if refuted else -np.inf)
