@@ -1,4 +1,4 @@
-"""The r = 6 frontier at k = 0: the best c of the linear law (design.linear_c, closed form) over gain
+"""The r = 6 frontier at k = 0: the best c of the linear law (linear_limit.linear_c, closed form) over gain
 sets with every gain in [0.01, B], for several B. c only grows with l_6, so the span of the gains
 that can be certified is bounded from below by this table (and k < 0 only lowers c).
 
@@ -13,7 +13,8 @@ import argparse
 
 import numpy as np
 
-from ftstab_mj.control.design import linear_c, nelder_mead
+from ftstab_mj.control.design import nelder_mead
+from ftstab_mj.control.linear_limit import linear_c
 
 
 def best_c(r: int, B: float, starts: int, rng) -> tuple[float, np.ndarray]:

@@ -206,6 +206,8 @@ def _enclosure_at(t: Terms, z):
 
 ZERO_SET_STATES = 2_000  # face states per face and zero set in certify's refutation (_zero_set_witness)
 ZERO_SET_CLIMBS = 32  # of them, the best climbed on the set
+GOLDEN = (np.sqrt(5.0) - 1.0) / 2.0
+LAST_SWEEP = np.concatenate([-np.logspace(1, -10, 111), [0.0], np.logspace(-10, 1, 111)])  # s_r / |s_r| of the limit state
 
 
 def _zero_set_witness(obj: "_Ratio", seed: int):
@@ -225,16 +227,13 @@ def _zero_set_witness(obj: "_Ratio", seed: int):
         return None
     rng = np.random.default_rng((seed, 1))
     t = obj.t
-
-    def onto(s, i):  # y_i = s_i + S_{i-1} = 0: S_{i-1} depends on s_1 .. s_{i-1} only
-        s[:, i - 1] = -t.z_of([s[:, j] for j in range(r)])[2][i - 1]
-        return s
-
+    onto = functools.partial(onto_zero_set, t)
     R = obj.floats
+    seeds = zero_set_starts(obj)
     best, arg = -np.inf, None
     for i in range(2, r):
         with np.errstate(all="ignore"):
-            s = onto(face_points(r, ZERO_SET_STATES, rng), i)
+            s = onto(np.concatenate([face_points(r, ZERO_SET_STATES, rng), seeds.get(i, np.empty((0, r)))]), i)
             # a random local ascent of the float R on the set from its best states (the face
             # coordinate and s_i held: s_i is a function of the others there)
             s = s[np.argsort(R(s))[-ZERO_SET_CLIMBS:]]
@@ -258,6 +257,59 @@ def _zero_set_witness(obj: "_Ratio", seed: int):
         if lo[j] > best:
             best, arg = float(lo[j]), z[j].copy()
     return None if arg is None else (best, arg)
+
+
+def zero_set_starts(obj: "_Ratio") -> dict:
+    """{i: face states (2, r) on z_i = 0}: the maximiser of dV1/dt / V1 on that set in the limit
+    k -> 0- (linear_limit.limit_forms, both signs) with s_r then set to the best of LAST_SWEEP
+    (times its face value) by the float R, refined by a golden section. The limit's maximiser is one direction, which random
+    face states rarely come near; s_r has to move with k because l_r (up to 1e6) multiplies it
+    (measured: r = 6, gains 0.55176 .. 46.148, 1e5, k = -0.0005: R = -11,649 at the limit state,
+    -0.0236 after the sweep; the zero-set climb from samples alone reaches -0.084, from these
+    -0.0227)."""
+    from ftstab_mj.control.linear_limit import limit_forms
+
+    t, r = obj.t, obj.r
+    out = {}
+    for f in limit_forms([g.mid_float() for g in t.l], single=True):
+        s = onto_zero_set(t, onto_faces(t, np.stack([f.z, -f.z])), f.z_zero[0])
+        grid = LAST_SWEEP[None, :] * np.abs(s[:, r - 1:]).clip(1e-300, 1.0)  # (2, n)
+        trial = np.repeat(s, grid.shape[1], axis=0)
+        trial[:, r - 1] = grid.ravel()
+        j = obj.floats(trial).reshape(2, -1).argmax(axis=1).clip(1, grid.shape[1] - 2)
+        a, b = grid[[0, 1], j - 1], grid[[0, 1], j + 1]
+
+        def R_at(x):
+            s[:, r - 1] = x
+            return obj.floats(s)
+
+        for _ in range(60):  # golden section between the best's neighbours (~1e-12 of the bracket)
+            x1, x2 = b - GOLDEN * (b - a), a + GOLDEN * (b - a)
+            left = R_at(x1) >= R_at(x2)
+            a, b = np.where(left, a, x1), np.where(left, x2, b)
+        R_at((a + b) / 2.0)
+        out[f.z_zero[0]] = s
+    return out
+
+
+def onto_zero_set(t: Terms, s, i: int) -> np.ndarray:
+    """s (n, r) with s_i set to -S_{i-1}, so y_i = s_i + S_{i-1} = 0 and z_i = 0 exactly (S_{i-1}
+    depends on s_1 .. s_{i-1} only). In place; returns s."""
+    s[:, i - 1] = -t.z_of([s[:, j] for j in range(t.r)])[2][i - 1]
+    return s
+
+
+def onto_faces(t: Terms, z) -> np.ndarray:
+    """The recursion variables (n, r) of float states z (n, r), none 0, dilated onto the faces
+    max_i |s_i| = 1 (s_i has degree 1 - (i - 2) k for the dilation z_i -> lam^(p_i) z_i)."""
+    r = t.r
+    i = np.arange(1, r + 1)
+    s = t.s_of(z)
+    lam = np.min(np.abs(s) ** (-1.0 / (1.0 - (i - 2) * t.k)), axis=1)
+    s = t.s_of(z * lam[:, None] ** (1.0 + (i - 1) * t.k))
+    top = np.argmax(np.abs(s), axis=1)
+    s[np.arange(len(s)), top] = np.sign(s[np.arange(len(s)), top])
+    return s
 
 
 def unit_level_set_points(hong: HongController, n: int, rng: np.random.Generator) -> np.ndarray:
