@@ -8,11 +8,17 @@ r >= 5 and k < 0 the states that refute such gains have a nearly vanishing recur
 (|s_4| ~ 1e-3 of the largest at r = 5), a thin layer that uniform states miss and where the powers
 |s_i|^(e_i - 1) of k < 0 differ most from the linear law; so half the states have log-uniform
 moduli 1e-6..1 (face_points, the distribution of the certificate's witness search).
+The estimate also takes the states of the zero sets z_i = 0 (certificate.zero_set_starts: where
+the factor |z_i|^(beta - 1) of k < 0 vanishes and V1 can increase while it decreases everywhere
+else); those are rebuilt for each gain set, since a fixed state leaves the set when the gains move.
 When the certificate's witness search (no branch and bound) still refutes the gains a search ends
 on, that state joins the fixed ones and the search goes on from there, up to REFUTE_ROUNDS times.
 
 The first search starts at the k = 0 optimum of the closed form (continuation from the linear
-law: k < 0 perturbs it), the others at geometric gain sequences. Without u_max the last gain is
+law: k < 0 perturbs it), moved, for k < 0, to the optimum of the limit of c as k -> 0-
+(linear_limit.limit_c) where that limit is not positive at the linear optimum (r = 6: its zero
+sets bind, and such gains have no certificate for k near 0); the others at geometric gain
+sequences. Without u_max the last gain is
 gain_max: V1 and the recursion variables s do not involve l_r, and dV1/dt = A(s) - l_r |s_r|^(1+e_r)
 with A independent of l_r, so c (a minimum over states of affine functions of l_r, non-decreasing)
 and T(z0) only improve with it. Every candidate is then certified soundly
@@ -48,6 +54,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ftstab_mj.control.certificate import face_points
+from ftstab_mj.control.linear_limit import limit_c, linear_c
 
 OBJECTIVES = ("max-c", "min-time")
 REFUTE_ROUNDS = 8  # searches per start, each after adding the state where the last result failed
@@ -94,36 +101,17 @@ def nelder_mead(f, x0, step=0.5, iters=300, tol=1e-7):
     return pts[i], vals[i]
 
 
-def linear_c(gains) -> float:
-    """c at k = 0 in closed form (float): the linear law's V1 = |e|^2 / 2 in the backstepping
-    coordinates e_1 = z_1, e_{i+1} = z_{i+1} + l_i e_i (e = T z), whose closed loop is e' = B e with
-    B = T A T^-1, so dV1/dt / V1 = 2 e^T B e / |e|^2 and c = 2 lambda_min(-(B + B^T) / 2).
-    Exact up to float rounding: the search objective at k = 0 and the start of the search at k < 0."""
-    g = np.asarray(gains, dtype=float)
-    r = len(g)
-    T = np.zeros((r, r))
-    T[0, 0] = 1.0
-    for i in range(1, r):
-        T[i] = g[i - 1] * T[i - 1]
-        T[i, i] += 1.0
-    A = np.diag(np.ones(r - 1), 1)
-    A[r - 1] = -g[-1] * T[r - 1]
-    with np.errstate(all="ignore"):
-        B = np.linalg.solve(T.T, (T @ A).T).T  # T A T^-1
-        c = 2.0 * float(np.linalg.eigvalsh(-(B + B.T) / 2.0)[0]) if np.isfinite(B).all() else -np.inf
-    return c if np.isfinite(c) else -np.inf
-
-
 def _estimate_c(r, k, gains, pts, rng):
     """-max over the fixed states pts (n, r) (recursion variables s on the faces) of the float
     ratio, improved by a short climb: an estimate of c from above (cheap; the final candidate is
     certified soundly). At k = 0 the closed form linear_c."""
-    from ftstab_mj.control.certificate import _climb, _Ratio
+    from ftstab_mj.control.certificate import _climb, _Ratio, zero_set_starts
     from ftstab_mj.control.hong_terms import Terms
 
     if k == 0:
         return linear_c(gains)
     obj = _Ratio(Terms(r, k, gains), "c")
+    pts = np.concatenate([pts, *zero_set_starts(obj).values()])  # they move with the gains
     f = obj.floats(pts)
     top = pts[np.argsort(f)[-8:]]
     z = _climb(obj, top, rng, rounds=20)
@@ -261,12 +249,23 @@ def design(r: int, k: float, objective: str = "max-c", z0=None, u_max: float | N
         g = gains_of(x)
         return -linear_c(g) if feasible(g) else np.inf
 
+    def limit_cost(x):
+        g = gains_of(x)
+        return -limit_c(g).c if feasible(g) else np.inf
+
     # starts: the k = 0 optimum of the closed form (exact and cheap: the continuation from k = 0,
-    # where k < 0 is a perturbation of the linear law), then `starts` geometric gain sequences
+    # where k < 0 is a perturbation of the linear law) or of its k -> 0- limit, then `starts`
+    # geometric gain sequences
     x_lin = feasible_start(geometric(2.0))
     if x_lin is not None and free:
         for _ in range(3):  # restarts: the simplex collapses on the ridges of c
             x_lin, _ = nelder_mead(linear_cost, x_lin, step=0.3, iters=1000, tol=1e-12)
+        # k < 0 and the limit k -> 0- of c not positive there (its zero sets bind: r = 6): those gains
+        # have no certificate for k near 0, so the limit's optimum instead (at r = 5 the linear one
+        # is better: k = -0.02, first search certified with c_lower 0.222 against 0.179)
+        if k < 0 and limit_c(gains_of(x_lin)).c <= 0.0:
+            for _ in range(3):
+                x_lin, _ = nelder_mead(limit_cost, x_lin, step=0.3, iters=1000, tol=1e-12)
     inits = [(x_lin, 0.3)] + [(feasible_start(geometric(2.0 + 2.0 * s)), 0.7) for s in range(starts)]
     found = []  # (estimated cost, gains)
     for n, (x0, step) in enumerate(inits):
