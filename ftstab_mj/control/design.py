@@ -262,7 +262,7 @@ def design(r: int, k: float, objective: str = "max-c", z0=None, u_max: float | N
             x_lin, _ = nelder_mead(linear_cost, x_lin, step=0.3, iters=1000, tol=1e-12)
         # k < 0 and the limit k -> 0- of c not positive there (its zero sets bind: r = 6): those gains
         # have no certificate for k near 0, so the limit's optimum instead (at r = 5 the linear one
-        # is better: k = -0.02, first search certified with c_lower 0.222 against 0.179)
+        # is better: k = -0.02, first search certified with c_lower 0.2916 against 0.1789)
         if k < 0 and limit_c(gains_of(x_lin)).c <= 0.0:
             for _ in range(3):
                 x_lin, _ = nelder_mead(limit_cost, x_lin, step=0.3, iters=1000, tol=1e-12)
