@@ -14,7 +14,7 @@ import math
 import numpy as np
 import pytest
 
-from ftstab_mj.control import HongController
+from ftstab_mj.control import HongController, certify
 from ftstab_mj.control.certificate import _Ratio, _zero_set_witness, onto_zero_set, zero_set_starts
 from ftstab_mj.control.hong_terms import Terms
 from ftstab_mj.control.linear_limit import limit_c, limit_forms, linear_c
@@ -152,3 +152,21 @@ def test_the_zero_set_search_reaches_the_limit_value():
     lim = limit_c(G6_LIMIT).c
     assert abs(lo + lim) <= 2 * _first_order(6, k, G6_LIMIT) * lim, (lo, lim)
     assert (z[1:-1] == 0.0).any()
+
+
+def test_certify_reports_the_zero_set_value_as_its_c_upper():
+    """certify's c_upper takes the zero-set state's guaranteed value where it is tighter than the
+    sampled witness (it was reported only when it refuted): r = 6, k = -0.0005, the limit optimum
+    for gains <= 1e5: c_upper within twice the first-order gap of lim c (sampled witness: 0.084),
+    the witness has a z_i exactly 0 and V1 = 1, and the controller's own dV1/dt / V1^alpha there is
+    -c_upper within 1e-4 relative (measured 3.8e-6: c_upper is the low end of R's enclosure at the
+    state before its dilation onto V1 = 1, whose rounding l_6 = 1e5 magnifies in s_6)."""
+    k = -0.0005
+    h = HongController(6, k, G6_LIMIT)
+    cert = certify(h, budget=2.0)
+    lim = limit_c(G6_LIMIT).c
+    assert cert.status != "not certified" and abs(cert.c_upper - lim) <= 2 * _first_order(6, k, G6_LIMIT) * lim
+    w = np.array([cert.witness])
+    assert (w[0, 1:-1] == 0.0).any() and abs(h.V1(w)[0] - 1.0) < 1e-9
+    R = float(h.closed_loop_dV1dt(w)[0] / h.V1(w)[0] ** ((2 + 2 * k) / (2 + k)))
+    assert R == pytest.approx(-cert.c_upper, rel=1e-4)

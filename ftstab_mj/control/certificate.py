@@ -1025,7 +1025,11 @@ def certify(hong: HongController, samples: int = DEFAULT_SAMPLES, seed: int = DE
     mc = _maximise(obj, _seed_points(obj, samples, rng), rtol, deadline_c, True, say, rng, max_boxes,
                    zero[0] if refuted else -np.inf)
     c_lower, c_upper = -mc.upper, -mc.lower
-    on_zero_set = refuted and mc.lower == zero[0]  # the witness is the zero set's state
+    # the zero set's guaranteed value bounds c from above wherever it is above the search's witness
+    # (it steers the B&B only when it refutes; after it, it only tightens c_upper)
+    on_zero_set = zero is not None and zero[0] >= mc.lower  # the witness is the zero set's state
+    if on_zero_set:
+        c_upper = -zero[0]
     status = CERTIFIED if c_lower > 0 else NOT_CERTIFIED if c_upper <= 0 else UNDECIDED
     mp = None
     if status == CERTIFIED:  # c' only matters (Theorem 3) where the certificate holds
