@@ -262,11 +262,11 @@ def _zero_set_witness(obj: "_Ratio", seed: int):
 def zero_set_starts(obj: "_Ratio") -> dict:
     """{i: face states (2, r) on z_i = 0}: the maximiser of dV1/dt / V1 on that set in the limit
     k -> 0- (linear_limit.limit_forms, both signs) with s_r then set to the best of LAST_SWEEP
-    (times its face value) by the float R, refined by a golden section. The limit's maximiser is one direction, which random
-    face states rarely come near; s_r has to move with k because l_r (up to 1e6) multiplies it
-    (measured: r = 6, gains 0.55176 .. 46.148, 1e5, k = -0.0005: R = -11,649 at the limit state,
-    -0.0236 after the sweep; the zero-set climb from samples alone reaches -0.084, from these
-    -0.0227)."""
+    (times its face value) by the float R, refined by a golden section. The limit's maximiser is
+    one direction, which random face states rarely come near; s_r has to move with k because l_r
+    (up to 1e6) multiplies it (measured: r = 6, gains 0.55176 .. 46.148, 1e5, k = -0.0005, on
+    z_3 = 0: R = -11,649 at the limit state, -0.0247 after the sweep; the zero-set climb from
+    samples alone reaches -0.084 over the sets, from these -0.0217)."""
     from ftstab_mj.control.linear_limit import limit_forms
 
     t, r = obj.t, obj.r
