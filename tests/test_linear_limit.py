@@ -54,6 +54,13 @@ def test_the_limit_is_the_linear_c_with_every_factor_one_and_never_above_it():
                 assert len(forms) == 1
 
 
+def test_gains_that_overflow_floats_have_no_limit_value_as_no_linear_value():
+    """Gains whose products overflow floats (1e100 each at r = 6: l^5 = 1e500): limit_c is -inf, as
+    linear_c is (no value, not an error); gains of 10 have a finite one."""
+    assert linear_c((1e100,) * 6) == -np.inf and limit_c((1e100,) * 6).c == -np.inf
+    assert np.isfinite(limit_c((10.0,) * 6).c)
+
+
 def test_every_limit_state_lies_on_its_zero_sets_with_its_value():
     """Each choice's state z has z_i = 0 on its z-sets and e_i = z_i - v_{i-1} = 0 on its s-sets
     (k = 0 law: v_i = -l_i e_i), |e| = 1, and there the limit's dV1/dt, recomputed here from the

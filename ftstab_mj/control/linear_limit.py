@@ -22,12 +22,12 @@ def linear_c(gains) -> float:
     r = len(g)
     T = np.zeros((r, r))
     T[0, 0] = 1.0
-    for i in range(1, r):
-        T[i] = g[i - 1] * T[i - 1]
-        T[i, i] += 1.0
     A = np.diag(np.ones(r - 1), 1)
-    A[r - 1] = -g[-1] * T[r - 1]
-    with np.errstate(all="ignore"):
+    with np.errstate(all="ignore"):  # overflowing gains: B not finite, -inf below
+        for i in range(1, r):
+            T[i] = g[i - 1] * T[i - 1]
+            T[i, i] += 1.0
+        A[r - 1] = -g[-1] * T[r - 1]
         B = np.linalg.solve(T.T, (T @ A).T).T  # T A T^-1
         c = 2.0 * float(np.linalg.eigvalsh(-(B + B.T) / 2.0)[0]) if np.isfinite(B).all() else -np.inf
     return c if np.isfinite(c) else -np.inf
@@ -58,12 +58,16 @@ def limit_forms(gains, single=False):
         choices = [(tuple(i for i, c in zip(levels, cs) if c == 1), tuple(i for i, c in zip(levels, cs) if c == 2))
                    for cs in codes]
     for zero_z, zero_s in choices:
-        w = -l[0] * M[1]  # w_1 (rows: linear forms in e)
-        Q = np.outer(np.eye(r)[0], M[1]) + (np.outer(np.eye(r)[1], M[2] - w) if r >= 2 else 0.0)
-        for i in range(2, r):
-            w = np.zeros(r) if i in zero_s else -l[i - 1] * ((0.0 if i in zero_z else 1.0) * M[i] - w)
-            Q += np.outer(np.eye(r)[i], M[i + 1] - w)
-        Q = (Q + Q.T) / 2.0
+        with np.errstate(all="ignore"):  # overflowing gains: Q not finite, no value below
+            w = -l[0] * M[1]  # w_1 (rows: linear forms in e)
+            Q = np.outer(np.eye(r)[0], M[1]) + (np.outer(np.eye(r)[1], M[2] - w) if r >= 2 else 0.0)
+            for i in range(2, r):
+                w = np.zeros(r) if i in zero_s else -l[i - 1] * ((0.0 if i in zero_z else 1.0) * M[i] - w)
+                Q += np.outer(np.eye(r)[i], M[i + 1] - w)
+            Q = (Q + Q.T) / 2.0
+        if not np.isfinite(Q).all():  # gains whose products overflow floats: no value (as linear_c)
+            yield LimitC(-np.inf, zero_z, zero_s, np.full(r, np.nan))
+            continue
         rows = [M[i - 1] for i in zero_z] + [np.eye(r)[i - 1] for i in zero_s]
         if rows:
             _, sv, vt = np.linalg.svd(np.array(rows))
@@ -99,5 +103,6 @@ def limit_c(gains) -> LimitC:
     -2 lambda_max(Q restricted to that subspace). With every factor 1 that is linear_c. Measured:
     the maximum of the controller's own dV1/dt / V1^alpha on z_3 = 0 at k = -1e-6 is within 2e-4
     relative of this value, at r = 6. A limit, not a bound at any k: an estimate to search with.
+    -inf (as linear_c) where the gains' products overflow floats.
     """
     return min(limit_forms(gains), key=lambda f: f.c)
