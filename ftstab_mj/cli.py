@@ -797,12 +797,12 @@ def build_parser() -> argparse.ArgumentParser:
                     help="with --u-max: the box |z_i| <= R_i (one R for every i, or r of them)")
     dz.add_argument("--gain-min", type=_number_in(GAIN_MIN, GAIN_MAX), default=0.1, help="smallest gain (default 0.1)")
     dz.add_argument("--gain-max", type=_number_in(GAIN_MIN, GAIN_MAX), default=None,
-                    help="largest gain (default 100 for r <= 4, 1000 for r = 5, 1e5 for r = 6: longer chains need "
+                    help="largest gain (default 100 for r <= 4, 1000 for r = 5, 1e6 for r = 6: longer chains need "
                          "a larger last gain)")
     dz.add_argument("--budget", type=_number_in(0.01, 86400.0, what=" seconds"), default=None, metavar="SECONDS",
                     help="CPU seconds per candidate's certificate (default: until its gap is < 0.2 %%)")
     dz.add_argument("--max-boxes", type=_number_in(1, 10 ** 10, int), default=None, metavar="N",
-                    help="branch-and-bound boxes per candidate's certificate (default 5e6; deterministic)")
+                    help="branch-and-bound boxes per candidate's certificate (default 5e6, 2e7 for r = 6; deterministic)")
     dz.add_argument("--json", action="store_true", help="print JSON: gains and certificate")
     dz.set_defaults(func=cmd_design)
 

@@ -80,6 +80,21 @@ def _first_below(h, z0, level, period, chunk, t_max):
     return first
 
 
+@pytest.mark.parametrize("objective, z0", [("max-c", None), ("min-time", [[1.0, 0.0], [0.0, 1.0]])])
+def test_skipping_candidates_does_not_change_the_design(objective, z0):
+    """r = 2, k = -0.2: the design that skips the candidates whose guaranteed c_upper cannot win (and
+    certifies each gain set once) returns the gains and certificate of the one that certifies every
+    candidate; at least one candidate is skipped, so the comparison exercises the skip."""
+    said = []
+    pruned = design(2, -0.2, objective, z0=z0, progress=said.append)
+    every = design(2, -0.2, objective, z0=z0, prune=False)
+    assert any(m.startswith("skipping") for m in said), said
+    assert pruned.gains == every.gains and pruned.certificate.c_lower == every.certificate.c_lower
+    assert pruned.time_bound == every.time_bound
+    certified = [m for m in said if m.startswith("certifying")]
+    assert len(certified) == len(set(certified)), certified  # no gain set certified twice
+
+
 def test_designed_r5_gains_are_certified_independently_and_beat_the_bound():
     """r = 5, k = -0.02 (the searches of r <= 4 were refuted here): the designer's first search
     (from the k = 0 optimum; its certificate capped at 1e6 boxes) ends certified; an independent

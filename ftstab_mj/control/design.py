@@ -21,10 +21,15 @@ sets bind, and such gains have no certificate for k near 0); the others at geome
 sequences. Without u_max the last gain is
 gain_max: V1 and the recursion variables s do not involve l_r, and dV1/dt = A(s) - l_r |s_r|^(1+e_r)
 with A independent of l_r, so c (a minimum over states of affine functions of l_r, non-decreasing)
-and T(z0) only improve with it. Every candidate is then certified soundly
-(ftstab_mj.control.certificate.certify, at most max_boxes boxes: deterministic), and the best
-certified one by the certified objective is returned; none certified: the best estimate with its
-"not certified" / "undecided" certificate, never a claim. Objectives:
+and T(z0) only improve with it. The candidates are the end of each search and the first search's
+start (the search goes where the estimate over-estimates c most: at r = 6, k = -0.002 the limit
+optimum's estimate is 0.209 while its certificate proves c <= 0.125). Each candidate's witness
+search (certify without branch and bound, ~1 s at r = 6) gives a guaranteed c_upper; they are then
+certified soundly (ftstab_mj.control.certificate.certify, at most max_boxes boxes: deterministic)
+in the order of the best objective that c_upper allows, skipping each one that cannot beat the best
+certified objective (a skipped candidate could not have won), and the best certified one by the
+certified objective is returned; none certified: the first in that order with its "not certified"
+/ "undecided" certificate, never a claim. Objectives:
 
 * ``max-c``: maximise c_lower (for a given k, c scales with the gains: multiplying every gain by
   the same factor is not a dilation, so the search is over the gain vector, bounded by
@@ -59,7 +64,11 @@ from ftstab_mj.control.linear_limit import limit_c, linear_c
 OBJECTIVES = ("max-c", "min-time")
 REFUTE_ROUNDS = 8  # searches per start, each after adding the state where the last result failed
 DESIGN_MAX_BOXES = 5_000_000  # branch-and-bound cap per candidate: deterministic, ~1 min of CPU at r = 5
+# r = 6 at k < 0: the certificates of the limit optima took 15.1e6 and 18.3e6 boxes (k = -0.001,
+# -0.002; ~20 CPU minutes each), so the r = 6 cap is the certificate's own default
+DESIGN_MAX_BOXES_R6 = 20_000_000
 U_MARGIN = 1e-12  # relative: covers the float error of u0 at the vertex (module docstring)
+PRUNE_MARGIN = 1e-9  # relative: covers the float rounding of a skipped candidate's least possible T(z0)
 
 
 def nelder_mead(f, x0, step=0.5, iters=300, tol=1e-7):
@@ -162,16 +171,18 @@ class Design:
 
 
 def default_gain_max(r: int) -> float:
-    """The default largest gain for chains of length r: 100 up to r = 4, 1000 for r = 5, 1e5 for r = 6.
+    """The default largest gain for chains of length r: 100 up to r = 4, 1000 for r = 5, 1e6 for r = 6.
     Longer chains need a larger last gain: the best c over [0.1, 100]^r of the linear law (k = 0,
     closed form) is 0.31 at r = 5 and negative (-0.23) at r = 6, so no gain set in that box has a
-    certificate at k = 0; with 1000 and 1e5 it is 0.56 and 0.18."""
-    return 100.0 if r <= 4 else 1000.0 if r == 5 else 1e5
+    certificate at k = 0; with 1000 and 1e5 it is 0.56 and 0.18. At r = 6 with k < 0 the limit of c
+    as k -> 0- (linear_limit.limit_c) is what binds: its best value is 0.021 with gains up to 1e5
+    and 0.125 up to 1e6 (the largest gain the command line takes)."""
+    return 100.0 if r <= 4 else 1000.0 if r == 5 else 1e6
 
 
 def design(r: int, k: float, objective: str = "max-c", z0=None, u_max: float | None = None, region=None,
            gain_min=0.1, gain_max=None, starts=3, iters=150, budget=None, seed=0, max_boxes=None,
-           progress=None) -> Design:
+           progress=None, prune=True) -> Design:
     """Gains l_1..l_r in [gain_min, gain_max]^r for ``objective`` (module docstring) with a sound
     certificate.
 
@@ -179,10 +190,13 @@ def design(r: int, k: float, objective: str = "max-c", z0=None, u_max: float | N
     (both or neither). Returns the best certified candidate by the certified objective, else the
     best estimate with its (not certified / undecided) certificate. Deterministic for a given seed
     (the candidates' certificates have no time budget unless ``budget``, CPU s per candidate;
-    max_boxes caps each one's branch and bound, default DESIGN_MAX_BOXES). gain_max None:
-    default_gain_max(r). progress(text), if given, is told what is being done.
+    max_boxes caps each one's branch and bound, default DESIGN_MAX_BOXES, DESIGN_MAX_BOXES_R6 for
+    r = 6). gain_max None:
+    default_gain_max(r). progress(text), if given, is told what is being done. prune: skip the
+    candidates whose guaranteed c_upper cannot beat the best certified objective (False: certify
+    every candidate; the same answer, slower).
     """
-    from ftstab_mj.control.certificate import certify
+    from ftstab_mj.control.certificate import V1_enclosure, certify
     from ftstab_mj.control.hong import HongController, is_hurwitz
     from ftstab_mj.control.hong_terms import Terms
 
@@ -195,7 +209,8 @@ def design(r: int, k: float, objective: str = "max-c", z0=None, u_max: float | N
         if k >= 0 or z0.shape[-1] != r:
             raise ValueError("min-time needs k < 0 and initial states z0 of shape (m, r)")
     gain_max = default_gain_max(r) if gain_max is None else gain_max
-    max_boxes = DESIGN_MAX_BOXES if max_boxes is None else max_boxes
+    if max_boxes is None:
+        max_boxes = DESIGN_MAX_BOXES_R6 if r >= 6 else DESIGN_MAX_BOXES
     say = progress or (lambda text: None)
     rng = np.random.default_rng(seed)
     pts = face_points(r, 2000, rng)
@@ -217,6 +232,13 @@ def design(r: int, k: float, objective: str = "max-c", z0=None, u_max: float | N
             c = _estimate_c(r, k, g, pts, np.random.default_rng(seed))
         return c if np.isfinite(c) else -np.inf
 
+    def T_est(g, c):
+        """The float T(z0) of gains g with c in place of c_lower (inf where c is not > 0)."""
+        if not c > 0:
+            return np.inf
+        V0 = np.max(HongController(r, k, g, check_hurwitz=False).V1(z0))
+        return float(V0 ** (1.0 - alpha) / (c * (1.0 - alpha)))
+
     def cost_max_c(x):
         g = gains_of(x)
         return -c_est(g) if feasible(g) else np.inf
@@ -230,8 +252,7 @@ def design(r: int, k: float, objective: str = "max-c", z0=None, u_max: float | N
         c = c_est(g)
         if not c > 0:  # no bound: worse than any bound, still steering towards c > 0
             return 1e6 - c if np.isfinite(c) else np.inf
-        V0 = np.max(HongController(r, k, g, check_hurwitz=False).V1(z0))
-        return float(np.log(V0 ** (1.0 - alpha) / (c * (1.0 - alpha))))
+        return float(np.log(T_est(g, c)))
 
     def feasible_start(x0):
         """x0 with every gain halved until feasible (|u0| at the vertex grows with every gain)."""
@@ -268,6 +289,9 @@ def design(r: int, k: float, objective: str = "max-c", z0=None, u_max: float | N
                 x_lin, _ = nelder_mead(limit_cost, x_lin, step=0.3, iters=1000, tol=1e-12)
     inits = [(x_lin, 0.3)] + [(feasible_start(geometric(2.0 + 2.0 * s)), 0.7) for s in range(starts)]
     found = []  # (estimated cost, gains)
+    cost = cost_min_time if objective == "min-time" else cost_max_c
+    if x_lin is not None:  # the start itself: the estimate over-estimates c, and most where the search
+        found.append((cost(x_lin), tuple(_floor5(v) for v in gains_of(x_lin))))  # goes (r = 6: 0.209 vs c <= 0.125)
     for n, (x0, step) in enumerate(inits):
         if x0 is None:
             continue
@@ -289,13 +313,36 @@ def design(r: int, k: float, objective: str = "max-c", z0=None, u_max: float | N
         elif objective == "min-time":
             fx = cost_min_time(x)
         found.append((fx, tuple(_floor5(v) for v in gains_of(x))))
-    found = sorted(set(found))
-    best, fallback = None, None
+    estimate = {}  # each gain set once (searches often end on the same rounded gains), its best estimate
     for fx, g in found:
-        if not np.isfinite(fx) or not feasible(g):
-            continue
-        say(f"certifying gains {', '.join(f'{v:g}' for v in g)} ...")
-        cert = certify(HongController(r, k, g), budget=budget, max_boxes=max_boxes)
+        estimate[g] = min(fx, estimate.get(g, np.inf))
+    found = sorted((fx, g) for g, fx in estimate.items())  # the best estimate first
+    found = [g for fx, g in found if np.isfinite(fx) and feasible(g)]
+    # the witness search of each candidate (no branch and bound, ~1 s at r = 6): a guaranteed c_upper,
+    # and the whole answer where it refutes. The candidates are then certified in the order of their
+    # best possible objective (c_upper, or T from it), and one that cannot beat the best certified
+    # objective is skipped: that changes what costs time, never what is claimed
+    quick = {g: certify(HongController(r, k, g), budget=0.01) for g in found}
+
+    def hope(g):
+        """The best objective the candidate's certificate could reach (c_lower <= c_upper)."""
+        c = quick[g].c_upper
+        if objective == "max-c":
+            return -c
+        if not c > 0:
+            return np.inf
+        V0 = float(np.max(V1_enclosure(r, k, g, z0).lo))  # T grows with V1(z0): its lower end
+        return V0 ** (1.0 - alpha) / (c * (1.0 - alpha)) * (1.0 - PRUNE_MARGIN)
+
+    best, fallback = None, None
+    for g in sorted(found, key=hope):
+        cert = quick[g]
+        if cert.status != "not certified":  # refuted by the witness search alone: that is its certificate
+            if best is not None and prune and hope(g) >= best[0]:
+                say(f"skipping gains {', '.join(f'{v:g}' for v in g)}: c <= {cert.c_upper:.6g} cannot beat the best")
+                continue
+            say(f"certifying gains {', '.join(f'{v:g}' for v in g)} ...")
+            cert = certify(HongController(r, k, g), budget=budget, max_boxes=max_boxes)
         d = Design(g, cert, time_bound(cert, r, k, g, z0) if objective == "min-time" else None,
                    vertex_u0(r, k, g, region) if u_max is not None else None)
         score = d.time_bound if objective == "min-time" else -cert.c_lower
@@ -307,4 +354,4 @@ def design(r: int, k: float, objective: str = "max-c", z0=None, u_max: float | N
         return best[1]
     if fallback is not None:
         return fallback
-    return Design(found[0][1] if found else None, None)
+    return Design(None, None)
