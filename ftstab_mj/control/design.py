@@ -343,6 +343,8 @@ def design(r: int, k: float, objective: str = "max-c", z0=None, u_max: float | N
                 continue
             say(f"certifying gains {', '.join(f'{v:g}' for v in g)} ...")
             cert = certify(HongController(r, k, g), budget=budget, max_boxes=max_boxes)
+            say(f"gains {', '.join(f'{v:g}' for v in g)}: {cert.status}, c in [{cert.c_lower:.6g}, "
+                f"{cert.c_upper:.6g}] ({cert.boxes} boxes, {cert.seconds:.0f} s)")
         d = Design(g, cert, time_bound(cert, r, k, g, z0) if objective == "min-time" else None,
                    vertex_u0(r, k, g, region) if u_max is not None else None)
         score = d.time_bound if objective == "min-time" else -cert.c_lower
