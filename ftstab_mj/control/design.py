@@ -188,11 +188,11 @@ def design(r: int, k: float, objective: str = "max-c", z0=None, u_max: float | N
 
     z0: (m, r) initial states (min-time only); u_max, region (r,): |u0| <= u_max on |z_i| <= region[i]
     (both or neither). Returns the best certified candidate by the certified objective, else the
-    best estimate with its (not certified / undecided) certificate. Deterministic for a given seed
-    (the candidates' certificates have no time budget unless ``budget``, CPU s per candidate;
-    max_boxes caps each one's branch and bound, default DESIGN_MAX_BOXES, DESIGN_MAX_BOXES_R6 for
-    r = 6). gain_max None:
-    default_gain_max(r). progress(text), if given, is told what is being done. prune: skip the
+    first candidate in the order of its guaranteed c_upper with its (not certified / undecided)
+    certificate. Deterministic for a given seed (the candidates' certificates have no time budget
+    unless ``budget``, CPU s per candidate; max_boxes caps each one's branch and bound, default
+    DESIGN_MAX_BOXES, DESIGN_MAX_BOXES_R6 for r = 6). gain_max None: default_gain_max(r).
+    progress(text), if given, is told what is being done. prune: skip the
     candidates whose guaranteed c_upper cannot beat the best certified objective (False: certify
     every candidate; the same answer, slower).
     """
