@@ -72,6 +72,8 @@ ROWS = [  # (r, k, gains, origin)
     (5, -0.02, (0.70786, 1.2531, 1.7263, 8.945, 1000.0), "designed (first search, zero-set estimate)"),
     (6, -0.001, (0.59676, 1.0886, 1.4182, 4.3498, 99.289, 1e6), "limit k -> 0- optimum, l_6 = 1e6"),
     (6, -0.002, (0.55176, 1.0437, 1.3353, 3.3293, 46.148, 1e5), "limit k -> 0- optimum, l_6 = 1e5"),
+    (5, -0.02, (0.71995, 1.2204, 1.7251, 8.1008, 1000.0), "designed (candidates by guaranteed c_upper)"),
+    (6, -0.002, (0.59181, 1.0888, 1.4066, 4.3734, 99.27, 1e6), "designed (the first search's start)"),
 ]
 
 
