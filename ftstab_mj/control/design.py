@@ -232,13 +232,6 @@ def design(r: int, k: float, objective: str = "max-c", z0=None, u_max: float | N
             c = _estimate_c(r, k, g, pts, np.random.default_rng(seed))
         return c if np.isfinite(c) else -np.inf
 
-    def T_est(g, c):
-        """The float T(z0) of gains g with c in place of c_lower (inf where c is not > 0)."""
-        if not c > 0:
-            return np.inf
-        V0 = np.max(HongController(r, k, g, check_hurwitz=False).V1(z0))
-        return float(V0 ** (1.0 - alpha) / (c * (1.0 - alpha)))
-
     def cost_max_c(x):
         g = gains_of(x)
         return -c_est(g) if feasible(g) else np.inf
@@ -252,7 +245,8 @@ def design(r: int, k: float, objective: str = "max-c", z0=None, u_max: float | N
         c = c_est(g)
         if not c > 0:  # no bound: worse than any bound, still steering towards c > 0
             return 1e6 - c if np.isfinite(c) else np.inf
-        return float(np.log(T_est(g, c)))
+        V0 = np.max(HongController(r, k, g, check_hurwitz=False).V1(z0))
+        return float(np.log(V0 ** (1.0 - alpha) / (c * (1.0 - alpha))))
 
     def feasible_start(x0):
         """x0 with every gain halved until feasible (|u0| at the vertex grows with every gain)."""
@@ -334,17 +328,18 @@ def design(r: int, k: float, objective: str = "max-c", z0=None, u_max: float | N
         V0 = float(np.max(V1_enclosure(r, k, g, z0).lo))  # T grows with V1(z0): its lower end
         return V0 ** (1.0 - alpha) / (c * (1.0 - alpha)) * (1.0 - PRUNE_MARGIN)
 
+    hopes = {g: hope(g) for g in found}
     best, fallback = None, None
-    for g in sorted(found, key=hope):
-        cert = quick[g]
+    for g in sorted(found, key=hopes.get):
+        cert, shown = quick[g], ", ".join(f"{v:g}" for v in g)
         if cert.status != "not certified":  # refuted by the witness search alone: that is its certificate
-            if best is not None and prune and hope(g) >= best[0]:
-                say(f"skipping gains {', '.join(f'{v:g}' for v in g)}: c <= {cert.c_upper:.6g} cannot beat the best")
+            if best is not None and prune and hopes[g] >= best[0]:
+                say(f"skipping gains {shown}: c <= {cert.c_upper:.6g} cannot beat the best")
                 continue
-            say(f"certifying gains {', '.join(f'{v:g}' for v in g)} ...")
+            say(f"certifying gains {shown} ...")
             cert = certify(HongController(r, k, g), budget=budget, max_boxes=max_boxes)
-            say(f"gains {', '.join(f'{v:g}' for v in g)}: {cert.status}, c in [{cert.c_lower:.6g}, "
-                f"{cert.c_upper:.6g}] ({cert.boxes} boxes, {cert.seconds:.0f} s)")
+            say(f"gains {shown}: {cert.status}, c in [{cert.c_lower:.6g}, {cert.c_upper:.6g}] "
+                f"({cert.boxes} boxes, {cert.seconds:.0f} s)")
         d = Design(g, cert, time_bound(cert, r, k, g, z0) if objective == "min-time" else None,
                    vertex_u0(r, k, g, region) if u_max is not None else None)
         score = d.time_bound if objective == "min-time" else -cert.c_lower
