@@ -87,10 +87,10 @@ def test_certify_refutes_those_gains_on_the_zero_set_with_a_guaranteed_witness()
     assert cert.boxes <= 100  # refuted before the branch and bound splits anything
 
 
-def test_the_zero_set_refutation_leaves_certified_gains_as_they_were(monkeypatch):
-    """For gains with V1 decreasing on the zero sets the refutation is not used: certify's answer
-    (status, c_lower, c_upper, boxes, witness) is the same with the zero sets searched or not
-    (r = 3 NOTES gains, r = 4 designed)."""
+def test_the_zero_sets_leave_gains_whose_sampled_witness_is_better_as_they_were(monkeypatch):
+    """Where the zero sets' best state is below the sampled witness (r = 3 NOTES gains, r = 4
+    designed), certify's answer (status, c_lower, c_upper, boxes, witness) is the same with the
+    zero sets searched or not: they only act where their value is the higher one."""
     import ftstab_mj.control.certificate as cm
 
     for r, k, gains in ((3, -0.1, (1.0, 1.7, 5.0)), (4, -0.05, (0.83467, 1.4216, 2.8157, 100.0))):
@@ -100,3 +100,26 @@ def test_the_zero_set_refutation_leaves_certified_gains_as_they_were(monkeypatch
             m.setattr(cm, "_zero_set_witness", lambda *args: None)
             b = certify(h)
         assert (a.status, a.c_lower, a.c_upper, a.boxes, a.witness) == (b.status, b.c_lower, b.c_upper, b.boxes, b.witness)
+
+
+def test_the_branch_and_bound_stops_at_the_zero_set_witness_value(monkeypatch):
+    """r = 4, k = -0.005, gains 1.009, 1.651, 3.699, 56.113 (limit_c 0.611 on z_3 = 0 against
+    linear_c 0.947: the zero set binds). The largest dV1/dt / V1^alpha is on z_3 = 0, in a layer no
+    sampled state reaches, so the B&B's own witness stays below it and, with that as the threshold
+    for retiring boxes, the B&B splits the boxes around z_3 = 0 until its cap (measured: 3e6 boxes,
+    cap reached). With the zero set's guaranteed value as its witness it stops when the bracket is
+    within rtol (measured 18,928 boxes): so here within 200,000 boxes, the bracket within rtol, the
+    witness on z_3 = 0, and without the zero sets the cap is reached with a wider bracket."""
+    import ftstab_mj.control.certificate as cm
+
+    h = HongController(4, -0.005, (1.009, 1.651, 3.699, 56.113))
+    cap = 200_000
+    cert = certify(h, max_boxes=cap)
+    assert cert.certified and cert.boxes < cap // 2, cert.boxes  # c' included: it converges too
+    assert cert.gap <= cm.DEFAULT_RTOL * (1 + 1e-9), cert.gap
+    assert cert.witness[2] == 0.0 and abs(h.V1(np.array([cert.witness]))[0] - 1.0) < 1e-9, cert.witness
+    with monkeypatch.context() as m:
+        m.setattr(cm, "_zero_set_witness", lambda *args: None)
+        blind = certify(h, max_boxes=cap)
+    assert blind.boxes > cap and blind.c_upper > cert.c_upper * (1 + 10 * cm.DEFAULT_RTOL), (blind.boxes, blind.c_upper)
+    assert blind.c_lower <= cert.c_upper  # both brackets hold c
