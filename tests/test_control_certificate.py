@@ -464,6 +464,25 @@ def test_a_proof_under_a_small_memory_cap_is_still_a_proof(monkeypatch):
     assert capped != full  # the cap acted
 
 
+
+def test_the_gap_phase_stops_once_a_box_retired_for_memory_sets_c_lower(monkeypatch):
+    """With MAX_LIVE_BOXES = 400 (r = 4 designed, k = -0.05) phase 1 retires parked boxes, and the
+    largest ub among them then bounds c_lower whatever the gap phase splits. The gap phase stops in
+    the round where its live boxes fall to that bound: the bound (top) it reports before its last
+    round is above the final one, and it is not converged (it used to split on, reporting the same
+    top, until every live box was within rtol of the witness: 11,810 boxes for certify against
+    10,242 now, the same c_lower 0.0560221)."""
+    import ftstab_mj.control.certificate as cm
+
+    monkeypatch.setattr(cm, "MAX_LIVE_BOXES", 400)
+    obj = cm._Ratio(Terms(4, -0.05, (0.83467, 1.4216, 2.8157, 100.0)), "c")
+    rng = np.random.default_rng(0)
+    tops = []
+    m = cm._maximise(obj, cm._seed_points(obj, cm.DEFAULT_SAMPLES, rng), cm.DEFAULT_RTOL, np.inf, True,
+                     lambda best, top, n: tops.append(top), rng)
+    assert m.upper < 0 and not m.converged  # certified, the gap left open by the retired boxes
+    assert tops[-1] > m.upper, (tops[-5:], m.upper)
+
 def _split_tree_bound(evaluated):
     """max R bound over a branch and bound's final partition, rebuilt from every box it evaluated
     ((face, lo, hi, ub) batches in evaluation order), independently of its bookkeeping: a box is a
