@@ -134,11 +134,10 @@ def cmd_design(args) -> int:
     from ftstab_mj.control.hong import validate_hong
 
     if args.gain_max is None:  # the user set at most --gain-min: that is the option to name
-        args.gain_max = default_gain_max(args.r)
-        if args.gain_max <= args.gain_min:
-            raise UsageError(f"--gain-min: expected a value below {args.gain_max:g} (the default --gain-max for "
-                             f"r = {args.r}; pass a larger --gain-max to go above it), got {args.gain_min:g}")
-    if args.gain_max <= args.gain_min:
+        if default_gain_max(args.r) <= args.gain_min:
+            raise UsageError(f"--gain-min: expected a value below {default_gain_max(args.r):g} (the default --gain-max "
+                             f"for r = {args.r}; pass a larger --gain-max to go above it), got {args.gain_min:g}")
+    elif args.gain_max <= args.gain_min:
         raise UsageError(f"--gain-max: expected a value above --gain-min = {args.gain_min:g}, got {args.gain_max:g}")
     validate_hong(args.r, args.k, (1.0,) * args.r, check_hurwitz=False)  # k's range, before any work
     z0, region = _design_states(args)
@@ -153,7 +152,8 @@ def cmd_design(args) -> int:
         _end_progress(say)
     gains, cert = found.gains, found.certificate
     if args.json:
-        d = {"objective": args.objective, "gains": None if gains is None else list(gains),
+        d = {"objective": args.objective, "gain_min": args.gain_min, "gain_max": found.gain_max,
+             "refuted_gain_max": list(found.refuted_gain_max), "gains": None if gains is None else list(gains),
              "certificate": None if cert is None else _json_safe({**cert.to_dict(), "gap": cert.gap}),
              "time_bound": _json_safe(found.time_bound), "u0_max": found.u0_max,
              "u_max": args.u_max, "region": None if region is None else list(region)}
@@ -162,8 +162,11 @@ def cmd_design(args) -> int:
     from ftstab_mj.control import HongController
 
     print(f"design r = {args.r}, k = {args.k:g}, objective {args.objective}, gains in "
-          f"[{args.gain_min:g}, {args.gain_max:g}]"
+          f"[{args.gain_min:g}, {found.gain_max:g}]"
           + (f", |u0| <= {args.u_max:g} on |z_i| <= ({', '.join(f'{x:g}' for x in region)})" if region else ""))
+    if found.refuted_gain_max:  # why the range is not the one the user may expect
+        print(f"  the default range widened tenfold: every candidate with gains up to "
+              f"{' and up to '.join(f'{g:g}' for g in found.refuted_gain_max)} was refuted (a state with dV1/dt >= 0 each)")
     if gains is None:
         print("  no Hurwitz gain set found" + (" with |u0| <= --u-max on the region" if region else ""))
         return 1
@@ -175,7 +178,8 @@ def cmd_design(args) -> int:
         print(f"  max |u0| on the region = {found.u0_max:.6g} <= {args.u_max:g}   (exact: attained at the vertex "
               f"z = ({', '.join(f'{x:g}' for x in region)}), u0 being monotone in every z_i)")
     if not found.certified:  # no snippet: a scenario would claim a bound these gains do not have
-        hint = ("refuted: dV1/dt >= 0 at the witness, so more boxes would not help; try another k or gain range"
+        hint = ("refuted: dV1/dt >= 0 at the witness, so more boxes would not help; try k nearer 0"
+                + (" or a larger --gain-max" if found.gain_max < GAIN_MAX else "")
                 if cert.status == "not certified" else "raise --max-boxes / --budget, or try k nearer 0 or a larger --gain-max")
         print(f"  no candidate certified ({cert.status}): the gains above are the best estimate, not a result ({hint})")
         return 1
@@ -798,7 +802,8 @@ def build_parser() -> argparse.ArgumentParser:
     dz.add_argument("--gain-min", type=_number_in(GAIN_MIN, GAIN_MAX), default=0.1, help="smallest gain (default 0.1)")
     dz.add_argument("--gain-max", type=_number_in(GAIN_MIN, GAIN_MAX), default=None,
                     help="largest gain (default 100 for r <= 4, 1000 for r = 5, 1e6 for r = 6: longer chains need "
-                         "a larger last gain)")
+                         "a larger last gain; without --gain-max the range widens tenfold, at most twice and "
+                         "up to 1e6, while every candidate is refuted)")
     dz.add_argument("--budget", type=_number_in(0.01, 86400.0, what=" seconds"), default=None, metavar="SECONDS",
                     help="CPU seconds per candidate's certificate (default: until its gap is < 0.2 %%)")
     dz.add_argument("--max-boxes", type=_number_in(1, 10 ** 10, int), default=None, metavar="N",

@@ -412,3 +412,47 @@ def test_cli_u_max_holds_on_the_region(r, k, u_max, region, objective):
     assert u_vert.max() <= u_max and u_pts.max() <= u_vert.max()
     assert u_vert.max() == pytest.approx(out["u0_max"], rel=1e-12)
     assert u_vert.max() > 0.99 * u_max
+
+
+def test_a_refuted_range_widens_to_the_design_of_the_wider_one():
+    """r = 2, k = -0.45 with gains up to 1: every candidate refuted (a state with dV1/dt >= 0); one
+    tenfold widening gives exactly the design of the range up to 10 (certified), and says so (the
+    range kept, the default for a given gain_max: test_cli_design_widens_the_default_range_and_says_so)."""
+    widened = design(2, -0.45, gain_max=1.0, widen=1)
+    direct = design(2, -0.45, gain_max=10.0)
+    assert widened.certified and widened.gain_max == 10.0 and widened.refuted_gain_max == (1.0,)
+    assert widened.gains == direct.gains and widened.certificate.c_lower == direct.certificate.c_lower
+    assert max(widened.gains) <= 10.0
+
+
+def test_the_widened_ranges_stop_at_the_ceiling():
+    """Tenfold steps from gain_max, at most ``widen`` of them, never above GAIN_CEILING (the command
+    line's largest --gain-max); and a certified range is not widened (r = 2, k = -0.45, defaults)."""
+    from ftstab_mj.cli import GAIN_MAX
+    from ftstab_mj.control.design import GAIN_CEILING, gain_ranges
+
+    assert GAIN_CEILING == GAIN_MAX == 1e6
+    assert gain_ranges(100.0, 2) == (100.0, 1000.0, 10000.0) and gain_ranges(100.0, 0) == (100.0,)
+    assert gain_ranges(3e5, 2) == (3e5, 1e6) and gain_ranges(1e6, 2) == (1e6,)
+    d = design(2, -0.45)  # the default range: widen = 2, unused since it is certified
+    assert d.certified and d.gain_max == default_gain_max(2) and d.refuted_gain_max == ()
+
+
+def test_cli_design_widens_the_default_range_and_says_so(monkeypatch, capsys):
+    """Without --gain-max the command widens the default range while every candidate is refuted
+    (here a default of 1 for r = 2, where k = -0.45 is refuted): the header gives the range searched,
+    a line says which range was refuted, the JSON has gain_max and refuted_gain_max."""
+    from ftstab_mj.cli import main
+    from ftstab_mj.control import design as design_module
+
+    monkeypatch.setattr(design_module, "default_gain_max", lambda r: 1.0)
+    assert main(["design", "--r", "2", "--k", "-0.45"]) == 0
+    out = capsys.readouterr().out
+    assert "gains in [0.1, 10]" in out and "every candidate with gains up to 1 was refuted" in out
+    assert "status: certified" in out
+    assert main(["design", "--r", "2", "--k", "-0.45", "--json"]) == 0
+    d = json.loads(capsys.readouterr().out)
+    assert d["gain_max"] == 10.0 and d["refuted_gain_max"] == [1.0] and d["gain_min"] == 0.1
+    assert main(["design", "--r", "2", "--k", "-0.45", "--gain-max", "1"]) == 1  # a given range is kept
+    out = capsys.readouterr().out
+    assert "gains in [0.1, 1]" in out and "refuted" in out and "or a larger --gain-max" in out

@@ -29,7 +29,10 @@ certified soundly (ftstab_mj.control.certificate.certify, at most max_boxes boxe
 in the order of the best objective that c_upper allows, skipping each one that cannot beat the best
 certified objective (a skipped candidate could not have won), and the best certified one by the
 certified objective is returned; none certified: the first in that order with its "not certified"
-/ "undecided" certificate, never a claim. Objectives:
+/ "undecided" certificate, never a claim. When every candidate is refuted (a state with
+dV1/dt >= 0 each: more boxes cannot help) and the range is the default one, the design is done
+again in the range WIDEN_FACTOR times wider (c never decreases with l_r), at most WIDEN_STEPS times
+and up to GAIN_CEILING. Objectives:
 
 * ``max-c``: maximise c_lower (for a given k, c scales with the gains: multiplying every gain by
   the same factor is not a dilation, so the search is over the gain vector, bounded by
@@ -54,7 +57,7 @@ every gain at that vertex, so the feasible gains are those below a boundary in l
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -68,6 +71,11 @@ DESIGN_MAX_BOXES = 5_000_000  # branch-and-bound cap per candidate: deterministi
 # -0.002; ~20 CPU minutes each), so the r = 6 cap is the certificate's own default
 DESIGN_MAX_BOXES_R6 = 20_000_000
 U_MARGIN = 1e-12  # relative: covers the float error of u0 at the vertex (module docstring)
+# the default range is widened tenfold, twice, while every candidate is refuted (c never decreases
+# with l_r: module docstring): r = 4, k = -0.15 and r = 5, k = -0.05 are refuted with the default
+# range and certified with the next one
+WIDEN_FACTOR, WIDEN_STEPS = 10.0, 2
+GAIN_CEILING = 1e6  # the largest gain a design widens to: the command line's limit (cli.GAIN_MAX)
 PRUNE_MARGIN = 1e-9  # relative: covers the float rounding of a skipped candidate's least possible T(z0)
 
 
@@ -164,6 +172,8 @@ class Design:
     certificate: object
     time_bound: float | None = None
     u0_max: float | None = None
+    gain_max: float | None = None  # the upper end of the range searched (after any widening)
+    refuted_gain_max: tuple = ()  # the upper ends of narrower ranges where every candidate was refuted
 
     @property
     def certified(self) -> bool:
@@ -181,7 +191,7 @@ def default_gain_max(r: int) -> float:
 
 
 def design(r: int, k: float, objective: str = "max-c", z0=None, u_max: float | None = None, region=None,
-           gain_min=0.1, gain_max=None, starts=3, iters=150, budget=None, seed=0, max_boxes=None,
+           gain_min=0.1, gain_max=None, widen=None, starts=3, iters=150, budget=None, seed=0, max_boxes=None,
            progress=None, prune=True) -> Design:
     """Gains l_1..l_r in [gain_min, gain_max]^r for ``objective`` (module docstring) with a sound
     certificate.
@@ -192,14 +202,14 @@ def design(r: int, k: float, objective: str = "max-c", z0=None, u_max: float | N
     certificate. Deterministic for a given seed (the candidates' certificates have no time budget
     unless ``budget``, CPU s per candidate; max_boxes caps each one's branch and bound, default
     DESIGN_MAX_BOXES, DESIGN_MAX_BOXES_R6 for r = 6). gain_max None: default_gain_max(r).
+    widen: how many times the range may grow WIDEN_FACTOR-fold (never above GAIN_CEILING) while
+    every candidate is refuted; None: WIDEN_STEPS with the default range, 0 with a given gain_max
+    (a range the caller chose is kept). A widened design is the design of the wider range
+    (Design.gain_max; Design.refuted_gain_max lists the upper ends that were refuted).
     progress(text), if given, is told what is being done. prune: skip the
     candidates whose guaranteed c_upper cannot beat the best certified objective (False: certify
     every candidate; the same answer, slower).
     """
-    from ftstab_mj.control.certificate import V1_enclosure, certify
-    from ftstab_mj.control.hong import HongController, is_hurwitz
-    from ftstab_mj.control.hong_terms import Terms
-
     if objective not in OBJECTIVES:
         raise ValueError(f"objective: expected one of {', '.join(OBJECTIVES)}, got {objective!r}")
     if (u_max is None) != (region is None):
@@ -208,10 +218,41 @@ def design(r: int, k: float, objective: str = "max-c", z0=None, u_max: float | N
         z0 = np.atleast_2d(np.asarray(z0, dtype=float))
         if k >= 0 or z0.shape[-1] != r:
             raise ValueError("min-time needs k < 0 and initial states z0 of shape (m, r)")
-    gain_max = default_gain_max(r) if gain_max is None else gain_max
+    if widen is None:
+        widen = WIDEN_STEPS if gain_max is None else 0
+    gain_max = default_gain_max(r) if gain_max is None else float(gain_max)
+    say = progress or (lambda text: None)
+    tops = gain_ranges(gain_max, widen)
+    for n, top in enumerate(tops):
+        if n:
+            say(f"every candidate with gains up to {tops[n - 1]:g} refuted; searching up to {top:g} ...")
+        found, all_refuted = _design_in_range(r, k, objective, z0, u_max, region, gain_min, top, starts,
+                                              iters, budget, seed, max_boxes, say, prune)
+        if not all_refuted:  # certified, undecided (more boxes might decide) or no candidate at all
+            break
+    return replace(found, gain_max=top, refuted_gain_max=tops[:n])
+
+
+def gain_ranges(gain_max: float, widen: int) -> tuple:
+    """The upper ends of the gain ranges a design tries in turn while every candidate is refuted:
+    gain_max, then WIDEN_FACTOR times the previous one, ``widen`` times at most, never above
+    GAIN_CEILING (a gain_max already there is not widened)."""
+    tops = [float(gain_max)]
+    while len(tops) <= widen and tops[-1] < GAIN_CEILING:
+        tops.append(min(tops[-1] * WIDEN_FACTOR, GAIN_CEILING))
+    return tuple(tops)
+
+
+def _design_in_range(r, k, objective, z0, u_max, region, gain_min, gain_max, starts, iters, budget, seed,
+                     max_boxes, say, prune) -> tuple:
+    """(design() in the one range [gain_min, gain_max], whether every candidate was refuted: a state
+    with dV1/dt >= 0 each); arguments checked by design."""
+    from ftstab_mj.control.certificate import V1_enclosure, certify
+    from ftstab_mj.control.hong import HongController, is_hurwitz
+    from ftstab_mj.control.hong_terms import Terms
+
     if max_boxes is None:
         max_boxes = DESIGN_MAX_BOXES_R6 if r >= 6 else DESIGN_MAX_BOXES
-    say = progress or (lambda text: None)
     rng = np.random.default_rng(seed)
     pts = face_points(r, 2000, rng)
     lo, hi = np.log(gain_min), np.log(gain_max)
@@ -329,7 +370,7 @@ def design(r: int, k: float, objective: str = "max-c", z0=None, u_max: float | N
         return V0 ** (1.0 - alpha) / (c * (1.0 - alpha)) * (1.0 - PRUNE_MARGIN)
 
     hopes = {g: hope(g) for g in found}
-    best, fallback = None, None
+    best, fallback, statuses = None, None, []  # statuses: of the candidates certified or refuted (not skipped)
     for g in sorted(found, key=hopes.get):
         cert, shown = quick[g], ", ".join(f"{v:g}" for v in g)
         if cert.status != "not certified":  # refuted by the witness search alone: that is its certificate
@@ -340,6 +381,7 @@ def design(r: int, k: float, objective: str = "max-c", z0=None, u_max: float | N
             cert = certify(HongController(r, k, g), budget=budget, max_boxes=max_boxes)
             say(f"gains {shown}: {cert.status}, c in [{cert.c_lower:.6g}, {cert.c_upper:.6g}] "
                 f"({cert.boxes} boxes, {cert.seconds:.0f} s)")
+        statuses.append(cert.status)
         d = Design(g, cert, time_bound(cert, r, k, g, z0) if objective == "min-time" else None,
                    vertex_u0(r, k, g, region) if u_max is not None else None)
         score = d.time_bound if objective == "min-time" else -cert.c_lower
@@ -347,8 +389,9 @@ def design(r: int, k: float, objective: str = "max-c", z0=None, u_max: float | N
             best = (score, d)
         if fallback is None and not cert.certified:
             fallback = d
+    refuted = bool(statuses) and all(st == "not certified" for st in statuses)
     if best is not None:
-        return best[1]
+        return best[1], refuted
     if fallback is not None:
-        return fallback
-    return Design(None, None)
+        return fallback, refuted
+    return Design(None, None), refuted
