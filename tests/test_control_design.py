@@ -473,7 +473,7 @@ def test_the_face_grid_lies_on_the_faces_and_reaches_the_thin_layers():
         assert np.array_equal(g, face_grid(r, n))
 
 
-def test_the_face_grid_makes_the_search_estimate_what_the_certificate_proves():
+def test_the_face_grid_brings_the_search_estimate_near_what_the_certificate_proves():
     """Why the r = 4 search uses the grid: at the gains the designer found without it (r = 4,
     k = -0.15, up to 1000) its estimate of c (the search's objective, from above: states) was 0.258,
     3.0x the certified c_upper; with the grid's states it is 0.0914, 1.08x (both pinned, 1e-6
