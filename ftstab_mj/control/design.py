@@ -220,9 +220,11 @@ def design(r: int, k: float, objective: str = "max-c", z0=None, u_max: float | N
     z0: (m, r) initial states (min-time only); u_max, region (r,): |u0| <= u_max on |z_i| <= region[i]
     (both or neither). Returns the best certified candidate by the certified objective, else the
     first candidate in the order of its guaranteed c_upper with its (not certified / undecided)
-    certificate. Deterministic for a given seed (the candidates' certificates have no time budget
-    unless ``budget``, CPU s per candidate; max_boxes caps each one's branch and bound, default
-    DESIGN_MAX_BOXES, DESIGN_MAX_BOXES_R6 for r = 6). gain_max None: default_gain_max(r).
+    certificate. Deterministic for a given seed on one machine: no step depends on time (the
+    candidates' certificates have no time budget unless ``budget``, CPU s per candidate; max_boxes
+    caps each one's branch and bound, default DESIGN_MAX_BOXES, DESIGN_MAX_BOXES_R6 for r = 6), but
+    another NumPy power (SIMD or not) moves the float search, which can then end at other gains,
+    each certified by its own certificate. gain_max None: default_gain_max(r).
     widen: how many times the range may grow WIDEN_FACTOR-fold (never above GAIN_CEILING) while
     every candidate is refuted; None: WIDEN_STEPS with the default range, 0 with a given gain_max
     (a range the caller chose is kept). A widened design is the design of the wider range
@@ -362,7 +364,9 @@ def _design_in_range(r, k, objective, z0, u_max, region, gain_min, gain_max, sta
             # estimate -max R at every gain set, so no later round can reach a positive one: stop
             if not np.isfinite(fx) or fx >= 0.0 or not is_hurwitz(g):
                 break
-            quick = certify(HongController(r, k, g), budget=0.01)  # the witness search only
+            # the witness search only: a box cap, not a CPU budget (0.01 s once), so that where the B&B
+            # stops, hence the witness, does not depend on the machine's speed (design is deterministic)
+            quick = certify(HongController(r, k, g), max_boxes=1)
             if quick.status != "not certified":
                 break
             z = np.array([quick.witness])
@@ -382,7 +386,7 @@ def _design_in_range(r, k, objective, z0, u_max, region, gain_min, gain_max, sta
     # and the whole answer where it refutes. The candidates are then certified in the order of their
     # best possible objective (c_upper, or T from it), and one that cannot beat the best certified
     # objective is skipped: that changes what costs time, never what is claimed
-    quick = {g: certify(HongController(r, k, g), budget=0.01) for g in found}
+    quick = {g: certify(HongController(r, k, g), max_boxes=1) for g in found}
 
     def hope(g):
         """The best objective the candidate's certificate could reach (c_lower <= c_upper)."""
