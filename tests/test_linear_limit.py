@@ -139,6 +139,44 @@ def test_the_limit_is_the_controllers_own_maximum_on_the_zero_set(gains):
     assert gaps[1] < gaps[0] / 3
 
 
+def _zero_set_start_one_set(obj, f):
+    """The zero-set start of one set, the slow reference path: its own golden section on s_r, the
+    two trial points evaluated one after the other (as zero_set_starts did before it ran every set
+    at once)."""
+    from ftstab_mj.control.certificate import GOLDEN, LAST_SWEEP, onto_faces
+
+    t, r = obj.t, obj.r
+    s = onto_zero_set(t, onto_faces(t, np.stack([f.z, -f.z])), f.z_zero[0])
+    grid = LAST_SWEEP[None, :] * np.abs(s[:, r - 1:]).clip(1e-300, 1.0)
+    trial = np.repeat(s, grid.shape[1], axis=0)
+    trial[:, r - 1] = grid.ravel()
+    j = obj.floats(trial).reshape(2, -1).argmax(axis=1).clip(1, grid.shape[1] - 2)
+    a, b = grid[[0, 1], j - 1], grid[[0, 1], j + 1]
+    for _ in range(60):
+        x1, x2 = b - GOLDEN * (b - a), a + GOLDEN * (b - a)
+        s[:, r - 1] = x1
+        R1 = obj.floats(s)
+        s[:, r - 1] = x2
+        left = R1 >= obj.floats(s)
+        a, b = np.where(left, a, x1), np.where(left, x2, b)
+    s[:, r - 1] = (a + b) / 2.0
+    return s
+
+
+@pytest.mark.parametrize("r, k, gains", [(3, -0.1, (1.3643, 2.5353, 100.0)), (5, -0.02, (0.70391, 1.2469, 1.7225, 8.962, 1000.0)),
+                                          (6, -0.002, G6_DECADES)])
+def test_the_joint_golden_section_is_each_sets_own_bit_for_bit(r, k, gains):
+    """zero_set_starts runs the golden sections of every zero set (and both signs) in one array, both
+    trial points in one evaluation; the float R is elementwise in the states, so each set's start is
+    exactly the one its own section gives (no tolerance: the same floats)."""
+    obj = _Ratio(Terms(r, k, gains), "c")
+    joint = zero_set_starts(obj)
+    forms = limit_forms(list(gains), single=True)
+    assert sorted(joint) == sorted(f.z_zero[0] for f in forms) == list(range(2, r))
+    for f in forms:
+        assert np.array_equal(joint[f.z_zero[0]], _zero_set_start_one_set(obj, f))
+
+
 def test_r6_gains_refuted_on_a_zero_set_fail_the_limit_condition():
     """The r = 6 gains certify refutes on z_4 = 0 at k = -0.002 (the 6-decade row; the designer's
     first k = -0.005 candidate) have linear_c > 0 but limit_c < 0 on z_4 = 0: no certificate for any
