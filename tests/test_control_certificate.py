@@ -206,6 +206,45 @@ def test_box_bounds_hold_against_search(r):
     print(f"box bounds r = {r}: largest (R found - ub)/|ub| = {worst:.3g}")
 
 
+@pytest.mark.parametrize("r", [2, 3, 4, 5, 6])
+def test_a_box_bound_does_not_depend_on_the_boxes_evaluated_with_it(r):
+    """The B&B evaluates a small round's boxes of every face in one call (certificate.MERGE_FACES):
+    on random boxes of mixed faces, many at the zeros of the recursion variables (where factors are
+    split, remainders held and paired), _Ratio.boxes in one call gives, bit for bit, what it gives
+    face by face and one box at a time (bound, split coordinate, centre's lower bound, centre), for
+    R = dV1/dt / V1^alpha and |dV1/dz_r| / V1^alpha', at a random k and at k near 0 (pairs in use).
+    So the soundness checks of one face's boxes hold for the merged call. Before, a factor split on
+    one box of a call added a rounding (and the outward-rounded trace of its zero gradient) to the
+    bound of every other box: the same box got other bounds in other company."""
+    from ftstab_mj.control.certificate import PAIR_K, _Ratio
+
+    rng = np.random.default_rng(300 + r)
+    base = [g for g in K0_SETS if len(g) == r][-1]
+    compared = 0
+    for k in (-rng.uniform(0.05, 0.6) / r, -rng.uniform(0.2, 1.0) * PAIR_K):
+        gains = tuple(float(g) for g in np.array(base) * 2.0 ** rng.uniform(-1, 1, r))
+        for kind in ("c", "cp"):
+            obj = _Ratio(Terms(r, k, gains), kind)
+            n = 120
+            mid = np.sign(rng.uniform(-1, 1, (n, r - 1))) * 10.0 ** rng.uniform(-7, 0, (n, r - 1))
+            half = np.abs(mid) * 10.0 ** rng.uniform(-2, 0.5, (n, r - 1))  # many reach a zero
+            lo, hi = np.clip(mid - half, -1, 1), np.clip(mid + half, -1, 1)
+            face = rng.integers(0, r, n)
+            with np.errstate(all="ignore"):
+                merged = obj.boxes(face, lo, hi)
+                for f in range(r):
+                    sel = np.nonzero(face == f)[0]
+                    alone = obj.boxes(f, lo[sel], hi[sel])
+                    for a, b in zip(alone, merged):
+                        assert np.array_equal(a, b[sel], equal_nan=True), (r, k, kind, f)
+                for i in range(0, n, 6):
+                    one = obj.boxes(int(face[i]), lo[i:i + 1], hi[i:i + 1])
+                    for a, b in zip(one, merged):
+                        assert np.array_equal(a[0], b[i], equal_nan=True), (r, k, kind, i)
+            compared += n
+    assert compared == 4 * 120
+
+
 def face_coordinates(r: int, k: float, s: np.ndarray):
     """(face f, the r - 1 face coordinates) of the recursion variables s (r,) dilated onto s_f = +1:
     s_i has degree 1 - (i - 2) k (i = 1..r), and V1, dV1/dt are even."""
@@ -351,10 +390,10 @@ def _mean_value_violations(r, seed, genuine=True, boxes=60, pairs=40, slope_scal
                 for jj, g in enumerate(F.g):
                     if g is None:
                         continue
-                    if jj < d:
-                        a, b = flat(xq[..., jj]), flat(xp[..., jj])
-                    elif jj - d in phis:
-                        a, b = flat(pq[jj - d]), flat(pp[jj - d])
+                    if jj < r:  # the state's coordinate s_(jj+1): box coordinate jj - (jj > face)
+                        a, b = flat(xq[..., jj - (jj > face)]), flat(xp[..., jj - (jj > face)])
+                    elif jj - r in phis:
+                        a, b = flat(pq[jj - r]), flat(pp[jj - r])
                     else:
                         continue
                     bound = _up(bound + _term(Iv(np.repeat(g.lo, pairs), np.repeat(g.hi, pairs)), a, a, b))
@@ -485,14 +524,14 @@ def test_the_gap_phase_stops_once_a_box_retired_for_memory_sets_c_lower(monkeypa
 
 def _split_tree_bound(evaluated):
     """max R bound over a branch and bound's final partition, rebuilt from every box it evaluated
-    ((face, lo, hi, ub) batches in evaluation order), independently of its bookkeeping: a box is a
+    ((face, lo, hi, ub) batches in evaluation order, face an int or one per box), independently of its bookkeeping: a box is a
     half of the box it was cut from (the same face, one coordinate halved: bisection of [-1, 1] is
     exact in floats), a box's bound is the smallest ub along its ancestry (a child lies in its
     parent), and the partition is the boxes never cut (live, set aside or retired alike).
     Returns (the largest bound of the partition, how many of its boxes have a bound >= 0)."""
     bound = {}  # key -> [bound, cut]
-    for face, lo, hi, ub in evaluated:
-        for l, h, u in zip(lo, hi, ub):
+    for faces, lo, hi, ub in evaluated:
+        for face, l, h, u in zip(np.broadcast_to(faces, len(lo)).tolist(), lo, hi, ub):
             parent = None
             for j in range(len(l)):
                 up, down = h.copy(), l.copy()
@@ -528,7 +567,7 @@ def test_c_lower_under_the_live_box_cap_is_the_bound_of_every_box_at_the_end(mon
     def recorded(obj, face, lo, hi, *args, **kwargs):
         out = boxes(obj, face, lo, hi, *args, **kwargs)
         if obj.kind == "c":
-            evaluated.append((face, lo.copy(), hi.copy(), out[0].copy()))
+            evaluated.append((np.copy(face), lo.copy(), hi.copy(), out[0].copy()))
         return out
 
     monkeypatch.setattr(cm._Ratio, "boxes", recorded)

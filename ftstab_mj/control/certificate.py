@@ -49,6 +49,13 @@ MAX_LIVE_BOXES = 8_000_000
 # boxes split per round: their children are evaluated together and NumPy's overhead is per round
 # (r = 5, k = -0.01: 22 % more boxes a CPU second than at 8192; small problems never reach it)
 SPLIT_BATCH = 32768
+# rounds of at most MERGE_FACES (r - 2) boxes (at least MERGE_FACES) are evaluated in one call for
+# every face (_Ratio.boxes with an array of faces), larger ones face by face: a call costs ~15 ms
+# (r = 3) to ~100 ms (r = 6) of NumPy overhead whatever its size, and one over several faces costs
+# more per box (every coordinate a variable). Measured, one call against one a face on random boxes
+# of all faces (CPU, median of 3): r = 3 0.47x at 512 boxes, 0.69x at 4096, 1.39x at 16384; r = 4
+# 0.32x, 0.58x at 4096, 0.75x at 8192, 1.18x at 16384; r = 5, 6 0.65x, 0.50x at 8192, 0.89x at 32768
+MERGE_FACES = 4096
 CERTIFIED, NOT_CERTIFIED, UNDECIDED = "certified", "not certified", "undecided"
 # factors of Terms.evaluate (slot % SLOTS) that dV1/dt is affine in: |y_i|^(1 - 1/beta_{i-1}) and
 # |s_i|^(q_i - 1), which enter only dS_i/dt (step 5 of _Ratio.boxes)
@@ -380,26 +387,33 @@ class _Ratio:
         with np.errstate(all="ignore"):
             return self._ratio(*self.t.evaluate([Iv(z[:, i]) for i in range(self.r)])[:3])
 
-    def product(self, face: int, lo, hi, pin=None):
-        """R on boxes of face ``face`` (lo, hi (n, r - 1): the s_i, i != face) as the function F of
-        the box and the remainder ranges (see ``boxes``), with forward differentiation.
+    def product(self, face, lo, hi, pin=None):
+        """R on boxes of the faces ``face`` (an int, or (n,) ints: boxes of several faces in one
+        evaluation; lo, hi (n, r - 1): the s_i, i != the box's face) as the function F of the box and
+        the remainder ranges (see ``boxes``), with forward differentiation.
 
         pin: {slot: (n,) int8} for slots of the affine factors (AFFINE_SLOTS): 1 (2) holds that
         factor's remainder at the lower (upper) end of its range D on that box, a point (step 5 of
         ``boxes``); 0 leaves it a variable over D.
 
-        Returns (F: Dual, value and gradient enclosures over the product; phis: {slot: _Split}, the
-        factors split affinely on the boxes ``near``; split: {slot: (n, r - 1)}, how much of each
-        remainder's range a halving of each box coordinate removes, for the split rule)."""
-        d, r, n = self.r - 1, self.r, len(lo)
+        Returns (F: Dual, value and gradient enclosures over the product, its gradient components
+        0..r-1 the states' coordinates s_1..s_r and r + slot the remainders; phis: {slot: _Split},
+        the factors split affinely on the boxes ``near``; split: {slot: (n, r)}, how much of each
+        remainder's range a halving of each coordinate removes, for the split rule). A coordinate
+        that is every box's face is the constant 1 (its component None); with boxes of several faces
+        it is a variable whose component is meaningless on the boxes of its face (seeded 0 there,
+        outward rounding can make it anything): no caller uses it there, where the coordinate is
+        held at 1 (``fixed``)."""
+        r, n = self.r, len(lo)
         m = SLOTS * max(0, r - 1)  # extra variables: the factor slots of Terms.evaluate
+        LO, HI, fixed = _on_faces(lo, face), _on_faces(hi, face), _fixed(face, n, r)
         phis, split, through = {}, {}, {}
 
         def box_factor(slot, x, e, op):
             if op == "value":  # z_j - v_{j-1}: on the product it is off the manifold by at most dev
                 if not isinstance(x, Dual):
                     return e
-                return Dual(_widened(e, x, phis, d), x.g)
+                return Dual(_widened(e, x, phis, r), x.g)
             chain = x.sig(e) if op == "sig" else x.pabs(e)
             if (not isinstance(x, Dual) or e.is_exactly(1.0) or e.is_exactly(0.0) or e.lo <= 1.0 <= e.hi
                     or (op == "pabs" and e.lo > 1.0)):  # |x|^0 = 1 (k = 0); no |x|^e, e > 1, is a slot
@@ -418,40 +432,45 @@ class _Ratio:
                 D = Iv(np.where(held, end, D.lo), np.where(held, end, D.hi))
             A = Iv(a)
             g = [None if gg is None else _rows(near, A * xg, gg) for gg, xg in zip(chain.g, x.g)]
-            g[d + slot] = Iv(np.where(near, 1.0, 0.0))
+            g[r + slot] = Iv(np.where(near, 1.0, 0.0))
             phis[slot] = _Split(near, a, D)
             # which box coordinates make phi's argument wide (directly and through the remainders it
             # depends on): a split of one of them narrows D, by 2^-e only near its zero
-            wid = np.zeros((n, d))
-            for jj in range(d):
+            wid = np.zeros((n, r))
+            for jj in range(r):
                 if x.g[jj] is not None:
-                    wid[:, jj] = x.g[jj].mag() * (hi[:, jj] - lo[:, jj])
+                    wid[:, jj] = np.where(fixed[jj], 0.0, x.g[jj].mag() * (HI[:, jj] - LO[:, jj]))
             for sl, var in phis.items():
-                gg = x.g[d + sl]
+                gg = x.g[r + sl]
                 if gg is not None and sl != slot:
                     wid += through[sl] * np.where(var.near, gg.mag() * (var.rng.hi - var.rng.lo), 0.0)[:, None]
             bad = ~np.isfinite(wid).all(axis=1)
-            wid[bad] = np.where(np.isfinite(wid[bad]), 0.0, (hi - lo)[bad])
+            wid[bad] = np.where(np.isfinite(wid[bad]), 0.0, (HI - LO)[bad])
             tot = wid.sum(axis=1, keepdims=True)
             through[slot] = np.where(tot > 0, wid / np.where(tot > 0, tot, 1.0), 0.0)
             split[slot] = through[slot] * (2.0 * (1.0 - 2.0 ** -e.lo))
             return Dual(_rows(near, A * x.v + D, chain.v), g)
 
-        zs, j = [], 0
+        zs = []
         for i in range(r):
-            if i == face:
+            if fixed[i].all():
                 zs.append(Iv(1.0))
             else:
-                zs.append(Dual(Iv(lo[:, j], hi[:, j]), [Iv(1.0) if jj == j else None for jj in range(d + m)]))
-                j += 1
+                seed = Iv(np.where(fixed[i], 0.0, 1.0)) if fixed[i].any() else Iv(1.0)
+                zs.append(Dual(Iv(LO[:, i], HI[:, i]), [seed if jj == i else None for jj in range(r + m)]))
         F = self._ratio(*self.t.evaluate(zs, box_factor, lambda sl: phis[sl].near if sl in phis else None)[:3])
         return F, phis, split
 
-    def at(self, face: int, x, phis):
-        """F at points of the product: x (n, r - 1) box coordinates, phis {slot: (near (n,), slope (n,),
-        value (n,))}: where ``near`` the factor is slope x + value (x its argument), elsewhere it is
-        computed; z_j - v_{j-1} is its plain difference (F's, off the manifold). An Iv (n,)."""
-        off = np.zeros(len(x), dtype=bool)
+    def at(self, face, x, phis):
+        """F at points of the product: x (n, r - 1) box coordinates on the faces ``face`` (an int or
+        (n,) ints), phis {slot: (near (n,), slope (n,), value (n,))}: where ``near`` the factor is
+        slope x + value (x its argument), elsewhere it is computed; z_j - v_{j-1} is its plain
+        difference (F's, off the manifold). An Iv (n,)."""
+        return self._at(_on_faces(x, face), phis)
+
+    def _at(self, z, phis):
+        """``at`` at the states z (n, r)."""
+        off = np.zeros(len(z), dtype=bool)
         for near, _, _ in phis.values():
             off |= near
 
@@ -464,12 +483,13 @@ class _Ratio:
             near, a, c = phis[slot]
             return _rows(near, Iv(a) * xx + c, val)
 
-        z = np.insert(x, face, 1.0, axis=1)
         zs = [Iv(z[:, i]) for i in range(self.r)]
         return self._ratio(*self.t.evaluate(zs, point_factor, lambda sl: phis[sl][0] if sl in phis else None)[:3])
 
-    def boxes(self, face: int, lo, hi):
-        """Bounds over boxes of face ``face``: lo, hi (n, r - 1) box coordinates (the s_i, i != face).
+    def boxes(self, face, lo, hi):
+        """Bounds over boxes of the faces ``face`` (an int, or (n,) ints: several faces in one
+        evaluation, the same bounds as one face at a time): lo, hi (n, r - 1) box coordinates (the
+        s_i, i != the box's face).
 
         Returns (upper bound of R on each box (n,), coordinate to split (n,), guaranteed lower bound
         of R at each centre (n,), centres (n, r)).
@@ -550,10 +570,9 @@ class _Ratio:
         off its gradient's); tests/test_interval_soundness.py checks D against mpmath at the exact
         extrema of phi(t) - a t.
         """
-        d, r = self.r - 1, self.r
+        r = self.r
         n = len(lo)
-        mid = 0.5 * (lo + hi)
-        zc = np.insert(mid, face, 1.0, axis=1)
+        zc = _on_faces(0.5 * (lo + hi), face)
         with np.errstate(all="ignore"):
             Rc = self.points(zc)  # R at the centres: a witness candidate
             vhi, mv, score, F, phis = self._forms(face, lo, hi)
@@ -565,89 +584,99 @@ class _Ratio:
                 near |= var.near
             if near.any():  # E1 there (elsewhere F = R, E1 = E2)
                 sel = np.nonzero(near)[0]
-                box = np.insert(np.stack([lo[sel], hi[sel]], axis=-1), face, 1.0, axis=1)
-                E1 = self._ratio(*self.t.evaluate([Iv(box[:, i, 0], box[:, i, 1]) for i in range(r)])[:3])
+                fsel = face if np.ndim(face) == 0 else face[sel]
+                blo, bhi = _on_faces(lo[sel], fsel), _on_faces(hi[sel], fsel)
+                E1 = self._ratio(*self.t.evaluate([Iv(blo[:, i], bhi[:, i]) for i in range(r)])[:3])
                 ub[sel] = np.fmin(ub[sel], E1.hi)
         ub = np.where(np.isnan(ub), np.inf, ub)
         rad = hi - lo
         # split where the mean-value form says the enclosure is widest (a variable factor's term
         # charged to the coordinates its range comes from); where it is unbounded, the widest side
+        score = _off_faces(score, face)
         plain = ~np.isfinite(score).all(axis=1) | ~(score > 0).any(axis=1)
         split = np.where(plain, np.argmax(rad, axis=1), np.argmax(np.where(np.isfinite(score), score, 0.0), axis=1))
         lb = np.where(np.isnan(Rc.lo), -np.inf, Rc.lo)
         return ub, split, lb, zc
 
-    def _forms(self, face: int, lo, hi, pin=None):
+    def _forms(self, face, lo, hi, pin=None):
         """Steps 2-4 of ``boxes`` on the product (with ``pin``'s remainders held at an end, step 5):
-        (E2's upper bound (n,), the mean-value form's (n,), the split scores (n, r - 1), F, phis)."""
-        d = self.r - 1
+        (E2's upper bound (n,), the mean-value form's (n,), the split scores (n, r) of the states'
+        coordinates, F, phis)."""
+        r = self.r
         n = len(lo)
-        mid = 0.5 * (lo + hi)
+        LO, HI, fixed = _on_faces(lo, face), _on_faces(hi, face), _fixed(face, n, r)
+        mid = 0.5 * (LO + HI)
         F, phis, share = self.product(face, lo, hi, pin)
         # the mean-value form about Baumann's centre: per variable x in [lo, hi] with dF/dx in
         # [a, b], the centre c where b (hi - c) = -a (c - lo) minimises the bound's term
         # max over x, g of g (x - c) (c = hi where a >= 0, lo where b <= 0: monotone in x)
-        cb = mid.copy()
-        for jj in range(d):
+        cb = mid.copy()  # 1 at each box's face
+        for jj in range(r):
             if F.g[jj] is not None:
-                cb[:, jj] = _baumann(F.g[jj], lo[:, jj], hi[:, jj], mid[:, jj])
+                cb[:, jj] = np.where(fixed[jj], 1.0, _baumann(F.g[jj], LO[:, jj], HI[:, jj], mid[:, jj]))
         centres = {}
         for slot, (near, a, val) in phis.items():
-            g, c = F.g[d + slot], 0.5 * (val.lo + val.hi)
+            g, c = F.g[r + slot], 0.5 * (val.lo + val.hi)
             centres[slot] = (near, a, c if g is None else _baumann(g, val.lo, val.hi, c))
-        mv = self.at(face, cb, centres).hi.copy()
+        mv = self._at(cb, centres).hi.copy()
         base = mv.copy()
-        score = np.zeros((n, d))
-        terms = {}  # variable (F.g's index) -> its term of the form (n,)
+        score = np.zeros((n, r))
+        terms = {}  # variable (F.g's index) -> its term of the form (n,); a coordinate's is 0 on its face
         for jj, g in enumerate(F.g):
             if g is None:
                 continue
-            if jj < d:
-                terms[jj] = _term(g, lo[:, jj], hi[:, jj], cb[:, jj])
-                score[:, jj] += g.mag() * (hi[:, jj] - lo[:, jj])  # the midpoint form's term (x2)
-            elif jj - d in phis:
-                val = phis[jj - d].rng
-                terms[jj] = _term(g, val.lo, val.hi, centres[jj - d][2])
-                w = g.mag() * (val.hi - val.lo)
-                score += share[jj - d] * np.where(np.isfinite(w), w, 0.0)[:, None]
-        self._pair(face, lo, hi, F, phis, cb, centres, terms)
-        for term in terms.values():
-            mv = _up(mv + term)
+            if jj < r:
+                terms[jj] = np.where(fixed[jj], 0.0, _term(g, LO[:, jj], HI[:, jj], cb[:, jj]))
+                # the midpoint form's term (x2)
+                score[:, jj] += np.where(fixed[jj], 0.0, g.mag() * (HI[:, jj] - LO[:, jj]))
+            elif jj - r in phis:
+                var = phis[jj - r]
+                terms[jj] = np.where(var.near, _term(g, var.rng.lo, var.rng.hi, centres[jj - r][2]), 0.0)
+                w = g.mag() * (var.rng.hi - var.rng.lo)
+                score += share[jj - r] * np.where(var.near & np.isfinite(w), w, 0.0)[:, None]
+        self._pair(fixed, LO, HI, F, phis, cb, centres, terms)
+        for jj, term in terms.items():
+            # a box's bound is the same whatever boxes are evaluated with it: a variable that is not one
+            # on a box (its coordinate held at 1, a factor not split there: its gradient component is
+            # then seeded 0, and outward rounding leaves a trace) adds nothing there, not even a rounding
+            absent = fixed[jj] if jj < r else ~phis[jj - r].near
+            mv = np.where(absent, mv, _up(mv + term)) if absent.any() else _up(mv + term)
         self._excess = mv - base  # the mean-value form's terms (for the choice of step 5's boxes)
         return F.v.hi.copy(), mv, score, F, phis
 
-    def _pair(self, face: int, lo, hi, F, phis, cb, centres, terms):
+    def _pair(self, fixed, lo, hi, F, phis, cb, centres, terms):
         """Step 6 of ``boxes``: on each box where it is smaller, the terms of a coordinate s_i and of
         the remainder of one factor of s_i itself (PAIRED_SLOTS) replaced by their joint bound
         (_paired_term): ``terms`` {F.g index: (n,)} updated in place, the pair's bound in the
-        coordinate's entry and 0 in the remainder's. One remainder per coordinate and box."""
-        d = self.r - 1
+        coordinate's entry and 0 in the remainder's. One remainder per coordinate and box; none on
+        the boxes where s_i is the face (``fixed``). lo, hi, cb: (n, r), the states' coordinates."""
+        r = self.r
         if not -self.t.k <= PAIR_K:
             return
         total = np.zeros(len(lo))
         for term in terms.values():
             total = total + np.where(np.isfinite(term), np.abs(term), 0.0)
-        for i in range(2, self.r + 1):
-            jj = i - 1 - (i - 1 > face)  # the box coordinate s_i (none on the face s_i = 1)
-            if i - 1 == face or F.g[jj] is None or jj not in terms:
+        for i in range(2, r + 1):
+            jj = i - 1  # the coordinate s_i
+            if F.g[jj] is None or jj not in terms:
                 continue
             best, pick, saving = None, None, np.zeros(len(lo))
             for j in PAIRED_SLOTS:
                 slot = SLOTS * (i - 2) + j
-                if slot not in phis or (d + slot) not in terms:
+                if slot not in phis or (r + slot) not in terms:
                     continue
                 e = self.t.e[i] if j == 2 else self.t.q[i]  # sig(s_i, e_i) in v_i, sig(s_i, q_i) in S_i
                 near, a, D = phis[slot]
                 # only where the remainder's term is a share of the form's terms: elsewhere the pair
                 # cannot gain much (speed only: any choice of boxes is sound)
-                rows = np.nonzero(near & ~(terms[d + slot] < PAIR_SHARE * total))[0]
+                rows = np.nonzero(near & ~fixed[jj] & ~(terms[r + slot] < PAIR_SHARE * total))[0]
                 if not len(rows):
                     continue
                 new = np.full(len(lo), np.inf)
-                new[rows] = _paired_term(_sub(F.g[jj], rows), _sub(F.g[d + slot], rows), lo[rows, jj], hi[rows, jj],
+                new[rows] = _paired_term(_sub(F.g[jj], rows), _sub(F.g[r + slot], rows), lo[rows, jj], hi[rows, jj],
                                          cb[rows, jj], a[rows], _sub(D, rows), centres[slot][2][rows], e, "sig")
                 with np.errstate(invalid="ignore"):
-                    gain = np.where(np.isfinite(new), (terms[jj] + terms[d + slot]) - new, 0.0)
+                    gain = np.where(np.isfinite(new), (terms[jj] + terms[r + slot]) - new, 0.0)
                 better = gain > saving
                 if better.any():
                     best = new if best is None else np.where(better, new, best)
@@ -658,26 +687,26 @@ class _Ratio:
             for slot in np.unique(pick[pick >= 0]):
                 use = pick == slot
                 terms[jj] = np.where(use, best, terms[jj])
-                terms[d + slot] = np.where(use, 0.0, terms[d + slot])
+                terms[r + slot] = np.where(use, 0.0, terms[r + slot])
 
     def _exponent(self, slot: int) -> Exp:
         """The exponent of an affine factor's slot (AFFINE_SLOTS; Terms.evaluate's numbering)."""
         i = slot // SLOTS + 2
         return self.t.one_m_inv_beta[i - 1] if slot % SLOTS == 0 else self.t.q_m1[i]
 
-    def _held(self, face: int, lo, hi, F, phis, excess):
+    def _held(self, face, lo, hi, F, phis, excess):
         """Step 5 of ``boxes``: on each box, up to MAX_HELD of the affine factors' remainders (those
         whose mean-value term |dF/d delta| width(D) is largest) held at each end of their ranges in
         turn, and the largest of the 2^m bounds (inf where none is held)."""
-        d, n = self.r - 1, len(lo)
-        cand = [sl for sl in phis if sl % SLOTS in AFFINE_SLOTS and F.g[d + sl] is not None
+        r, n = self.r, len(lo)
+        cand = [sl for sl in phis if sl % SLOTS in AFFINE_SLOTS and F.g[r + sl] is not None
                 and self._exponent(sl).hi <= HELD_EXPONENT]
         out = np.full(n, np.inf)
         if not cand:
             return out
         W = np.zeros((n, len(cand)))
         for c, sl in enumerate(cand):
-            w = F.g[d + sl].mag() * (phis[sl].rng.hi - phis[sl].rng.lo)
+            w = F.g[r + sl].mag() * (phis[sl].rng.hi - phis[sl].rng.lo)
             W[:, c] = np.where(phis[sl].near & ~(w <= 0), np.where(np.isnan(w), np.inf, w), 0.0)
         order = np.argsort(-W, axis=1, kind="stable")[:, :MAX_HELD]
         m = np.minimum((W > 0).sum(axis=1), MAX_HELD)
@@ -701,7 +730,7 @@ class _Ratio:
             return out
         rows = np.concatenate(rows)
         pin = {sl: np.concatenate(p) for sl, p in pins.items()}
-        vhi, mv = self._forms(face, lo[rows], hi[rows], pin)[:2]
+        vhi, mv = self._forms(face if np.ndim(face) == 0 else face[rows], lo[rows], hi[rows], pin)[:2]
         ubv = np.fmin(vhi, mv)
         ubv = np.where(np.isnan(ubv), np.inf, ubv)
         top = np.full(n, -np.inf)
@@ -717,23 +746,52 @@ class _Split(NamedTuple):
     rng: Iv  # (n,): D, the range of phi(x) - a x over the box
 
 
+def _on_faces(x, face):
+    """Box coordinates x (n, r - 1) as states (n, r): 1.0 put in at each box's face (an int, or (n,)
+    ints)."""
+    if np.ndim(face) == 0:
+        return np.insert(x, int(face), 1.0, axis=1)
+    n, d = x.shape
+    z = np.empty((n, d + 1))
+    for i in range(d + 1):  # column i: the coordinate i - 1 of the boxes whose face is before it, i after
+        before = x[:, i - 1] if i > 0 else 1.0
+        after = x[:, i] if i < d else 1.0
+        z[:, i] = np.where(face < i, before, np.where(face > i, after, 1.0))
+    return z
+
+
+def _off_faces(z, face):
+    """The inverse of _on_faces: the columns of z (n, r) other than each row's face, (n, r - 1)."""
+    if np.ndim(face) == 0:
+        return np.delete(z, int(face), axis=1)
+    n, r = z.shape
+    cols = np.arange(r - 1)[None, :]
+    return np.take_along_axis(z, cols + (cols >= face[:, None]), axis=1)
+
+
+def _fixed(face, n: int, r: int) -> list:
+    """[(n,) bool] for each coordinate i of the states: the boxes whose face it is (held at 1)."""
+    return [np.broadcast_to(np.asarray(face) == i, (n,)) for i in range(r)]
+
+
 def _rows(mask, a: Iv, b: Iv) -> Iv:
     """a where mask, b elsewhere (Iv of one shape)."""
     return Iv(np.where(mask, a.lo, b.lo), np.where(mask, a.hi, b.hi))
 
 
-def _widened(val: Iv, x: Dual, phis, d: int) -> Iv:
+def _widened(val: Iv, x: Dual, phis, r: int) -> Iv:
     """An enclosure over the product of z_j - v_{j-1} = x: val encloses it on the manifold (delta =
     delta(s)), and moving the remainders from there changes it by at most sum_k max|dx/d delta_k|
     width(D_k) (mean value theorem in delta, on the segment inside the product); intersected with x's
-    own enclosure. Outward-rounded; x's where that sum is not finite."""
+    own enclosure. Outward-rounded; x's where that sum is not finite. x.g[r + slot]: the remainders'."""
     dev = np.zeros(np.shape(val.lo))
     with np.errstate(invalid="ignore"):
         for sl, var in phis.items():
-            gg = x.g[d + sl]
+            gg = x.g[r + sl]
             if gg is not None:
-                term = np.where(var.near, _up(gg.mag() * _up(var.rng.hi - var.rng.lo)), 0.0)
-                dev = _up(dev + np.where(np.isnan(term), np.inf, term))
+                term = _up(gg.mag() * _up(var.rng.hi - var.rng.lo))
+                # only where the factor is split (elsewhere it is no variable: no term, no rounding)
+                dev = np.where(var.near, _up(dev + np.where(np.isnan(term), np.inf, term)), dev)
     return Iv(np.maximum(_dn(val.lo - dev), x.v.lo), np.minimum(_up(val.hi + dev), x.v.hi))
 
 
@@ -879,7 +937,9 @@ def _maximise(obj: _Ratio, seeds, rtol, deadline, stop_if_positive, progress=Non
     ub < 0 are parked first and only those with ub >= 0 are split, until none is left (c_lower > 0
     proven) or the witness reaches R >= 0 (stop: not certified); then the parked boxes are refined
     for the gap. A budget that runs out so decides the status before it tightens the gap. Each round splits
-    the open boxes with the largest ub (at most SPLIT_BATCH of them) along one coordinate.
+    the open boxes with the largest ub (at most SPLIT_BATCH of them) along one coordinate; a small
+    round's children of every face are bounded in one call (MERGE_FACES), which gives each box the
+    bound it gets alone (test_a_box_bound_does_not_depend_on_the_boxes_evaluated_with_it).
 
     Memory in phase 1 (r = 6 at k < 0 needs ~1e7 boxes of it): the boxes phase 1 splits are those
     with ub >= 0, whatever the order, so above MAX_LIVE_BOXES / 2 open boxes it splits those with
@@ -902,11 +962,16 @@ def _maximise(obj: _Ratio, seeds, rtol, deadline, stop_if_positive, progress=Non
     def evaluate(lo, hi, face):
         nonlocal best, wit, nbox
         ub, split = np.empty(len(lo)), np.empty(len(lo), dtype=int)
-        for f in np.unique(face):
-            sel = face == f
-            u, s, lbc, zc = obj.boxes(int(f), lo[sel], hi[sel])
+        # a small round in one evaluation: its cost is NumPy's per-call overhead, paid once instead of
+        # once a face; a large one face by face (several faces cost more gradient work per box)
+        merge = len(lo) <= MERGE_FACES * max(1, r - 2)
+        groups = [np.ones(len(lo), dtype=bool)] if merge else [face == f for f in np.unique(face)]
+        for sel in groups:
+            u, s, lbc, zc = obj.boxes(face[sel], lo[sel], hi[sel])
             ub[sel], split[sel] = u, s
-            j = int(np.argmax(lbc))
+            # the best centre; among equal ones the first of the lowest face (the order face by face)
+            top = np.nonzero(lbc == lbc.max())[0]
+            j = int(top[np.argmin(face[sel][top])])
             if lbc[j] > best:
                 best, wit = float(lbc[j]), zc[j].copy()
         nbox += len(lo)
