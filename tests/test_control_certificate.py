@@ -225,7 +225,7 @@ def test_a_box_bound_does_not_depend_on_the_boxes_evaluated_with_it(r):
         gains = tuple(float(g) for g in np.array(base) * 2.0 ** rng.uniform(-1, 1, r))
         for kind in ("c", "cp"):
             obj = _Ratio(Terms(r, k, gains), kind)
-            n = 120
+            n = 90
             mid = np.sign(rng.uniform(-1, 1, (n, r - 1))) * 10.0 ** rng.uniform(-7, 0, (n, r - 1))
             half = np.abs(mid) * 10.0 ** rng.uniform(-2, 0.5, (n, r - 1))  # many reach a zero
             lo, hi = np.clip(mid - half, -1, 1), np.clip(mid + half, -1, 1)
@@ -237,12 +237,42 @@ def test_a_box_bound_does_not_depend_on_the_boxes_evaluated_with_it(r):
                     alone = obj.boxes(f, lo[sel], hi[sel])
                     for a, b in zip(alone, merged):
                         assert np.array_equal(a, b[sel], equal_nan=True), (r, k, kind, f)
-                for i in range(0, n, 6):
+                for i in range(0, n, 9):
                     one = obj.boxes(int(face[i]), lo[i:i + 1], hi[i:i + 1])
                     for a, b in zip(one, merged):
                         assert np.array_equal(a[0], b[i], equal_nan=True), (r, k, kind, i)
             compared += n
-    assert compared == 4 * 120
+    assert compared == 4 * 90
+
+
+@pytest.mark.parametrize("r", [3, 4, 5, 6])
+def test_a_variable_absent_from_a_box_cannot_reach_its_bound(r, monkeypatch):
+    """On the boxes where a coordinate is the face (held at 1) or a factor is not split, that
+    variable's gradient component is seeded with certificate.ABSENT_SEED and must be masked at every
+    use: with the seed poisoned (inf, -1e300, NaN) a call over boxes of mixed faces near the zeros
+    (factors split, remainders held and paired) gives the same bits as with 0 (bound, split
+    coordinate, centre's lower bound, centre). An unmasked use would turn the bound into inf or NaN."""
+    import ftstab_mj.control.certificate as cm
+
+    rng = np.random.default_rng(400 + r)
+    base = [g for g in K0_SETS if len(g) == r][-1]
+    for k in (-rng.uniform(0.05, 0.6) / r, -rng.uniform(0.2, 1.0) * cm.PAIR_K):
+        gains = tuple(float(g) for g in np.array(base) * 2.0 ** rng.uniform(-1, 1, r))
+        n = 60
+        mid = np.sign(rng.uniform(-1, 1, (n, r - 1))) * 10.0 ** rng.uniform(-7, 0, (n, r - 1))
+        half = np.abs(mid) * 10.0 ** rng.uniform(-2, 0.5, (n, r - 1))
+        lo, hi = np.clip(mid - half, -1, 1), np.clip(mid + half, -1, 1)
+        face = rng.integers(0, r, n)
+        for kind in ("c", "cp"):
+            obj = cm._Ratio(Terms(r, k, gains), kind)
+            with np.errstate(all="ignore"):
+                clean = obj.boxes(face, lo, hi)
+                assert np.isfinite(clean[0]).mean() > 0.5, (r, k, kind)  # bounds to poison
+                for poison in (np.inf, -1e300, np.nan):
+                    monkeypatch.setattr(cm, "ABSENT_SEED", poison)
+                    for a, b in zip(obj.boxes(face, lo, hi), clean):
+                        assert np.array_equal(a, b, equal_nan=True), (r, k, kind, poison)
+                    monkeypatch.setattr(cm, "ABSENT_SEED", 0.0)
 
 
 def face_coordinates(r: int, k: float, s: np.ndarray):

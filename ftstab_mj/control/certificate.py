@@ -72,6 +72,10 @@ PAIR_SHARE = 0.1  # paired only where the remainder's term is at least this shar
 # and only for k this close to 0 (r = 6, k ~ -0.002 .. -0.005, where it was measured to tighten the
 # bound; at r = 4 and 5, k = -0.02 it cost 10-15 % CPU per box for the same boxes and c_lower)
 PAIR_K = 0.005
+# the gradient seed of a variable on the boxes where it is none (a coordinate on its own face, a
+# remainder where its factor is not split): every use of such a component is masked there, so any
+# value gives the same bounds (a test sets it to NaN and inf)
+ABSENT_SEED = 0.0
 HELD_SHARE = 0.5  # held only where their mean-value terms are at least this share of the excess
 MAX_HELD = 2  # of those, held at the ends of their ranges on one box: 2^MAX_HELD evaluations of it
 
@@ -361,7 +365,7 @@ def _refine_max(hong, f, z_best, rng, rounds=60, spread=0.2):
 # -- the quantity maximised over the faces ----------------------------------------------------------
 
 class _Ratio:
-    """num / V1^a on the face z_face = 1 of the cube: num = dV1/dt (kind "c") or |dV1/dz_r| ("cp")."""
+    """num / V1^a on the faces z_f = 1 of the cube: num = dV1/dt (kind "c") or |dV1/dz_r| ("cp")."""
 
     def __init__(self, terms: Terms, kind: str):
         self.t, self.kind = terms, kind
@@ -401,10 +405,10 @@ class _Ratio:
         the factors split affinely on the boxes ``near``; split: {slot: (n, r)}, how much of each
         remainder's range a halving of each coordinate removes, for the split rule). A coordinate
         that is every box's face is the constant 1 (its component None); with boxes of several faces
-        it is a variable whose component is meaningless on the boxes of its face (seeded 0 there,
-        outward rounding can make it anything): no caller uses it there, where the coordinate is
-        held at 1 (``fixed``)."""
-        r, n = self.r, len(lo)
+        it is a variable whose component is meaningless on the boxes of its face (seeded ABSENT_SEED
+        there, and outward rounding can make it anything), as is a remainder's on the boxes where its
+        factor is not split: no caller uses them there."""
+        r, n, face = self.r, len(lo), np.asarray(face)
         m = SLOTS * max(0, r - 1)  # extra variables: the factor slots of Terms.evaluate
         LO, HI, fixed = _on_faces(lo, face), _on_faces(hi, face), _fixed(face, n, r)
         phis, split, through = {}, {}, {}
@@ -432,7 +436,7 @@ class _Ratio:
                 D = Iv(np.where(held, end, D.lo), np.where(held, end, D.hi))
             A = Iv(a)
             g = [None if gg is None else _rows(near, A * xg, gg) for gg, xg in zip(chain.g, x.g)]
-            g[r + slot] = Iv(np.where(near, 1.0, 0.0))
+            g[r + slot] = Iv(np.where(near, 1.0, ABSENT_SEED))
             phis[slot] = _Split(near, a, D)
             # which box coordinates make phi's argument wide (directly and through the remainders it
             # depends on): a split of one of them narrows D, by 2^-e only near its zero
@@ -456,7 +460,7 @@ class _Ratio:
             if fixed[i].all():
                 zs.append(Iv(1.0))
             else:
-                seed = Iv(np.where(fixed[i], 0.0, 1.0)) if fixed[i].any() else Iv(1.0)
+                seed = Iv(np.where(fixed[i], ABSENT_SEED, 1.0)) if fixed[i].any() else Iv(1.0)
                 zs.append(Dual(Iv(LO[:, i], HI[:, i]), [seed if jj == i else None for jj in range(r + m)]))
         F = self._ratio(*self.t.evaluate(zs, box_factor, lambda sl: phis[sl].near if sl in phis else None)[:3])
         return F, phis, split
@@ -491,8 +495,8 @@ class _Ratio:
         evaluation, the same bounds as one face at a time): lo, hi (n, r - 1) box coordinates (the
         s_i, i != the box's face).
 
-        Returns (upper bound of R on each box (n,), coordinate to split (n,), guaranteed lower bound
-        of R at each centre (n,), centres (n, r)).
+        Returns (upper bound of R on each box (n,), box coordinate to split (n,), a column of lo/hi,
+        guaranteed lower bound of R at each centre (n,), centres (n, r)).
 
         The upper bound is the smallest of two interval enclosures of R, a mean-value form, and the
         largest of the mean-value forms with some remainders held at the ends of their ranges (each
@@ -527,7 +531,7 @@ class _Ratio:
            gradient is enclosed there by G (``F.g``).
         3. F(c) + sum_j sup(G_j (x_j - c_j)) >= F(x) for all x, c in X x D (mean value theorem on the
            segment from c to x, inside X x D); c is Baumann's centre of each variable, F(c) enclosed
-           by ``at``. Since (s, delta(s)) is in X x D and F(s, delta(s)) = R(s), this bounds R on X.
+           by ``_at``. Since (s, delta(s)) is in X x D and F(s, delta(s)) = R(s), this bounds R on X.
         4. E2 = F's value enclosure over X x D (``F.v``), a bound for the same reason.
         5. Held ends (R = dV1/dt / V1^alpha only). The factors of slots AFFINE_SLOTS,
            f = |y_i|^(1 - 1/beta_{i-1}) and g = |s_i|^(q_i - 1) (i = 2..r-1; exponents ~ -k, so on a
@@ -570,8 +574,7 @@ class _Ratio:
         off its gradient's); tests/test_interval_soundness.py checks D against mpmath at the exact
         extrema of phi(t) - a t.
         """
-        r = self.r
-        n = len(lo)
+        r, n, face = self.r, len(lo), np.asarray(face)
         zc = _on_faces(0.5 * (lo + hi), face)
         with np.errstate(all="ignore"):
             Rc = self.points(zc)  # R at the centres: a witness candidate
@@ -584,8 +587,7 @@ class _Ratio:
                 near |= var.near
             if near.any():  # E1 there (elsewhere F = R, E1 = E2)
                 sel = np.nonzero(near)[0]
-                fsel = face if np.ndim(face) == 0 else face[sel]
-                blo, bhi = _on_faces(lo[sel], fsel), _on_faces(hi[sel], fsel)
+                blo, bhi = _on_faces(lo[sel], _face_rows(face, sel)), _on_faces(hi[sel], _face_rows(face, sel))
                 E1 = self._ratio(*self.t.evaluate([Iv(blo[:, i], bhi[:, i]) for i in range(r)])[:3])
                 ub[sel] = np.fmin(ub[sel], E1.hi)
         ub = np.where(np.isnan(ub), np.inf, ub)
@@ -602,8 +604,7 @@ class _Ratio:
         """Steps 2-4 of ``boxes`` on the product (with ``pin``'s remainders held at an end, step 5):
         (E2's upper bound (n,), the mean-value form's (n,), the split scores (n, r) of the states'
         coordinates, F, phis)."""
-        r = self.r
-        n = len(lo)
+        r, n, face = self.r, len(lo), np.asarray(face)
         LO, HI, fixed = _on_faces(lo, face), _on_faces(hi, face), _fixed(face, n, r)
         mid = 0.5 * (LO + HI)
         F, phis, share = self.product(face, lo, hi, pin)
@@ -730,7 +731,7 @@ class _Ratio:
             return out
         rows = np.concatenate(rows)
         pin = {sl: np.concatenate(p) for sl, p in pins.items()}
-        vhi, mv = self._forms(face if np.ndim(face) == 0 else face[rows], lo[rows], hi[rows], pin)[:2]
+        vhi, mv = self._forms(_face_rows(face, rows), lo[rows], hi[rows], pin)[:2]
         ubv = np.fmin(vhi, mv)
         ubv = np.where(np.isnan(ubv), np.inf, ubv)
         top = np.full(n, -np.inf)
@@ -767,6 +768,11 @@ def _off_faces(z, face):
     n, r = z.shape
     cols = np.arange(r - 1)[None, :]
     return np.take_along_axis(z, cols + (cols >= face[:, None]), axis=1)
+
+
+def _face_rows(face, rows):
+    """The faces of the boxes ``rows`` (an index or mask) of boxes whose faces are ``face`` (an int or (n,))."""
+    return face if np.ndim(face) == 0 else face[rows]
 
 
 def _fixed(face, n: int, r: int) -> list:
