@@ -45,3 +45,14 @@ def test_run_speed_benchmark_prints_both_ratios():
     assert out.returncode == 0, out.stderr
     for row in ("process: `ftstab run` / plain mujoco", "in process: run, MCAP + Rerun / bare", "load average"):
         assert row in out.stdout, out.stdout
+
+
+def test_certificate_budget_benchmark_prints_a_row_per_population():
+    """Every drawn problem gets one of the three answers (the counts add up), one row per population."""
+    out = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "certificate_budget.py"), "--n", "2", "--r", "2"],
+                         capture_output=True, text=True, timeout=300, cwd=ROOT)
+    assert out.returncode == 0, out.stderr
+    rows = [line.split("|")[1:-1] for line in out.stdout.splitlines() if line.startswith("| 2 |")]
+    assert [row[1].strip() for row in rows] == ["domain", "near certified"], out.stdout
+    for row in rows:
+        assert sum(int(row[i]) for i in (3, 4, 5)) == 2, out.stdout
