@@ -149,10 +149,36 @@ def test_phibar_is_guaranteed_and_tight(integrating, damped):
 
 def test_bad_parameters_are_refused_by_name():
     with pytest.raises(ParameterError, match="params.link_inertia"):
-        make_plant("flexible_joint", {"link_inertia": 0.004})  # below m l_c^2 = 0.5 x 0.1^2 = 0.005
+        make_plant("flexible_joint", {"link_inertia": 0.002})  # below m l_c^2 = 0.3 x 0.1^2 = 0.003
     with pytest.raises(ParameterError, match="params.integrating"):
         make_plant("flexible_joint", {"integrating": 1})
     with pytest.raises(ParameterError, match="params.stiffnes"):
         make_plant("flexible_joint", {"stiffnes": 2.0})
     with pytest.raises(ParameterError, match="params.q_max"):
         make_plant("flexible_joint", {"q_min": 0.5, "q_max": 0.1})
+
+
+@pytest.mark.parametrize("name,tol", [("flexible_joint_r4_robust", 1e-5), ("flexible_joint_r5_robust", 1e-3)])
+def test_chain_identity_in_a_logged_run(name, tol, tmp_path):
+    """From the run's MCAP log (2 s of the shipped scenario): the increment of z_r per period equals
+    h (phi + gamma u) of the sample, relative to |phi + gamma u| (measured 95th percentiles: 1.7e-7 at
+    r = 4, 4.5e-5 at r = 5; the issue asks < 5 %). For r = 5 the bound also needs |q'''| <= qddd_max,
+    which the metrics do not check: checked here on the log (max 0.44 against 4). The recorded phi
+    stays within the computed phibar and gamma above gamma_m."""
+    import ftstab_mj
+
+    res = ftstab_mj.run(name, out=tmp_path, overrides=["sim.duration=2.0"])
+    s = ftstab_mj.replay(res.logs["mcap"]).samples["link"]
+    h = float(res.scenario["sim"]["period"])
+    r = s["z"].shape[1]
+    assert r == (5 if "r5" in name else 4)
+    inc = np.diff(s["z"][:, r - 1]) / h
+    pred = (s["phi"] + s["gamma"] * s["u"])[:-1]
+    rel = np.abs(inc - pred) / np.abs(pred)
+    assert np.percentile(rel, 95) < tol
+    plant = make_plant("flexible_joint", {k: v for k, v in res.scenario["plant"].items() if k != "model"})
+    ws = plant.loop_workspace(0, 0.0)
+    if "z4_abs_max" in ws:
+        assert np.abs(s["z"][:, 3]).max() <= ws["z4_abs_max"]
+    phibar, gm, _ = plant.true_bounds([(-5.0, 5.0)], [(0.9, 1.1)])  # the scenario's signals
+    assert np.abs(s["phi"]).max() <= phibar[0] and s["gamma"].min() >= gm[0] * (1 - 1e-12)

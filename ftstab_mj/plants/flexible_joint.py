@@ -50,17 +50,19 @@ from ftstab_mj.plants.base import Plant, check_keys, load_spec, number, register
 MODEL = "flexible_joint"
 DEFAULTS = {
     "integrating": False,
-    "motor_inertia": 0.05,      # kg m^2, J_m (rotor, with the gearbox's reflected inertia)
-    "link_mass": 0.5,           # kg
+    # a soft series-elastic joint: spring modes at sqrt(K/M_l + K/J_m) = 4.5 rad/s (0.7 Hz), slow
+    # enough for the chain's phi (spring, gravity) to stay within what a 0.2 ms sampled law absorbs
+    "motor_inertia": 0.1,       # kg m^2, J_m (rotor, with the gearbox's reflected inertia)
+    "link_mass": 0.3,           # kg
     "link_com": 0.1,            # m, centre of mass from the axis (gravity torque c sin q, c = m g l_c)
-    "link_inertia": 0.045,      # kg m^2, M_l about the link's axis (>= m l_c^2)
-    "stiffness": 2.0,           # N m/rad, K
+    "link_inertia": 0.1,        # kg m^2, M_l about the link's axis (>= m l_c^2)
+    "stiffness": 1.0,           # N m/rad, K
     "gear": 1.0,                # the motor torque is gear x tau
     "motor_damping": 0.0,       # N m s/rad, d_m (viscous, on the rotor)
     "link_damping": 0.0,        # N m s/rad, d_l
     # the workspace of the bounds (link): rad, rad/s, rad/s^2, rad/s^3, rad/s^4; u_max: N m (r = 5: N m/s)
     "q_min": -0.2, "q_max": 0.7, "qd_max": 1.5, "qdd_max": 1.5, "qddd_max": 4.0, "qdddd_max": 15.0,
-    "u_max": 2.0, "cells": 200,
+    "u_max": 5.0, "cells": 200,
 }
 MAX_CELLS = 2000
 
