@@ -18,9 +18,8 @@ of r = 5. In chain units
 
 The constants c, K, b, J_m, M_l, d_l, d_m are read from the compiled model (mass matrix, tendon
 stiffness, gravity torque, actuator gain and gear, dof damping), and z from its state (q, theta,
-q', theta', act, tau_d): q'' is MuJoCo's own link acceleration, and each higher derivative the exact
-time derivative of the one before along the model's equations above (:func:`link_derivatives`), not
-a finite difference. tests/test_plants_flexible_joint.py checks them against MuJoCo's dynamics
+q', theta', act, tau_d) by the model's equations above and their exact time derivatives
+(:func:`link_derivatives`), not finite differences: q'' equals MuJoCo's qacc of the link to 1e-12. tests/test_plants_flexible_joint.py checks them against MuJoCo's dynamics
 (q'' against qacc; q''', q'''' and d q''''/du against trajectories integrated by MuJoCo). The
 controller sees this exact z; a real joint would need a differentiator or an observer for it.
 
@@ -62,7 +61,7 @@ DEFAULTS = {
     "link_damping": 0.0,        # N m s/rad, d_l
     # the workspace of the bounds (link): rad, rad/s, rad/s^2, rad/s^3, rad/s^4; u_max: N m (r = 5: N m/s)
     "q_min": -0.2, "q_max": 0.7, "qd_max": 1.5, "qdd_max": 1.5, "qddd_max": 4.0, "qdddd_max": 15.0,
-    "u_max": 5.0, "cells": 200,
+    "u_max": None, "cells": 200,  # u_max: 5 N m (r = 4), 60 N m/s (r = 5); phi does not depend on u (one loop)
 }
 MAX_CELLS = 2000
 
@@ -197,7 +196,8 @@ class FlexibleJointPlant(Plant):
         integrating = params.get("integrating", DEFAULTS["integrating"])
         if not isinstance(integrating, bool):
             raise ParameterError("params.integrating", "true or false", integrating)
-        p = {key: number(params, key, DEFAULTS[key], positive=key in ("motor_inertia", "link_mass", "link_inertia",
+        defaults = dict(DEFAULTS, u_max=60.0 if integrating else 5.0)
+        p = {key: number(params, key, defaults[key], positive=key in ("motor_inertia", "link_mass", "link_inertia",
                                                                          "stiffness", "gear"),
                          nonneg=key in ("link_com", "motor_damping", "link_damping", "qd_max", "qdd_max",
                                         "qddd_max", "qdddd_max", "u_max"))
