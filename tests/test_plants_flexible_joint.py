@@ -182,3 +182,16 @@ def test_chain_identity_in_a_logged_run(name, tol, tmp_path):
         assert np.abs(s["z"][:, 3]).max() <= ws["z4_abs_max"]
     phibar, gm, _ = plant.true_bounds([(-5.0, 5.0)], [(0.9, 1.1)])  # the scenario's signals
     assert np.abs(s["phi"]).max() <= phibar[0] and s["gamma"].min() >= gm[0] * (1 - 1e-12)
+
+
+def test_a_user_model_driving_a_joint_through_a_spring_is_refused_in_one_line():
+    """The flexible joint's MJCF as a user model: its actuator reaches the link only through the spring,
+    which a user model's loop (r = 2 or 3) cannot be; the refusal names the key and the spring."""
+    from ftstab_mj.resources import data_dir
+
+    with pytest.raises(ParameterError) as err:
+        make_plant(str(data_dir("models") / "flexible_joint.xml"),
+                   {"loops": {"link": {"joint": "link", "actuator": "motor"}}})
+    text = str(err.value)
+    assert "\n" not in text and "params.loops.link.actuator" in text and "spring 'spring'" in text
+    assert "'flexible_joint'" in text
