@@ -25,14 +25,14 @@ import mujoco
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from ftstab_mj import native  # noqa: E402
-from ftstab_mj.callback import timer_off  # noqa: E402
-from ftstab_mj.compare import load_comparison  # noqa: E402
+from ftstab_mj.simulation import native  # noqa: E402
+from ftstab_mj.plants.callback import timer_off  # noqa: E402
+from ftstab_mj.studies.compare import load_comparison  # noqa: E402
 from ftstab_mj.plants import make_plant  # noqa: E402
 from ftstab_mj.scenario import LoopSpec  # noqa: E402
 from ftstab_mj.scenario.schema import ControllerSpec  # noqa: E402
-from ftstab_mj.disturbances import Signal  # noqa: E402
-from ftstab_mj.sim import Simulation  # noqa: E402
+from ftstab_mj.plants.disturbances import Signal  # noqa: E402
+from ftstab_mj.simulation.run_loop import Simulation  # noqa: E402
 
 STEP = 1e-3
 BATCH = 1000

@@ -29,7 +29,7 @@ def no_control_callback_left_installed():
     its timer callback (mjcb_time, which runs switch off)."""
     import mujoco
 
-    from ftstab_mj.callback import _timer_slot
+    from ftstab_mj.plants.callback import _timer_slot
 
     timer = _timer_slot()
     timer_before = timer.value if timer is not None else None
@@ -129,7 +129,7 @@ def record_run(plant, loops, duration, period, physics_step, sinks=(), metrics=F
                scenario_dict=None, **sim_kw):
     """A run of ``loops`` on ``plant`` recorded by ``sinks`` (the scenario runner's record): its RunResult."""
     from ftstab_mj.scenario.run import record
-    from ftstab_mj.sim import Run, Simulation
+    from ftstab_mj.simulation.run_loop import Run, Simulation
 
     sim = Simulation(plant, loops, period, physics_step, **sim_kw)
     return record(Run(sim, duration, batch_size, scenario_dict, keep_samples=True), sinks, metrics)[0]

@@ -11,7 +11,7 @@ from ftstab_mj.control import HongController, certify, theorem3_bounds
 from ftstab_mj.control.certificate import unit_level_set_points
 from ftstab_mj.control.hong_terms import Terms
 from ftstab_mj.control.interval import Exp, Iv
-from ftstab_mj.errors import ParameterError
+from ftstab_mj.config.errors import ParameterError
 
 # The reference table of the certificate (max over 2e5 samples of the unit level set), given to 3-4 digits
 REFERENCE = [
@@ -783,7 +783,7 @@ def test_envelope_points_and_chords_are_never_below_theorem_1s_exact_envelope():
     a few ulps more per operation, times the exponent 1/(1 - a) <= 200 for k <= -0.01). The float
     formula falls below the exact value at some points (so rounding matters)."""
     from ftstab_mj.control.certificate import CERTIFIED, Certificate
-    from ftstab_mj.metrics import envelope
+    from ftstab_mj.metrics.run_metrics import envelope
 
     rng = np.random.default_rng(5)
     worst, float_below, n = 0.0, 0, 0
@@ -818,7 +818,7 @@ def test_envelope_points_and_chords_are_never_below_theorem_1s_exact_envelope():
 def test_cache_gives_the_fresh_result(tmp_path, monkeypatch):
     """A certificate read back from the disk cache is identical to a fresh one; an unwritable cache
     directory falls back to computing (same result)."""
-    from ftstab_mj import certificate_cache as cc
+    from ftstab_mj.metrics.run_metrics import certificate_cache as cc
 
     monkeypatch.setenv("FTSTAB_CACHE_DIR", str(tmp_path / "cache"))
     cc.clear_memory()

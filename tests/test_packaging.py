@@ -42,7 +42,7 @@ def test_wheel_carries_models_and_scenarios_and_runs_without_the_source_tree(tmp
     assert res.returncode == 0, res.stderr[-2000:]
     assert (elsewhere / "runs" / "cart_r2_robust.mcap").stat().st_size > 0
     # The command ran from the unpacked wheel, not from the checkout.
-    probe = subprocess.run([sys.executable, "-c", "import ftstab_mj.resources as r; print(r.data_dir('models'))"],
+    probe = subprocess.run([sys.executable, "-c", "import ftstab_mj.config.resources as r; print(r.data_dir('models'))"],
                            capture_output=True, text=True, cwd=elsewhere, env=env)
     assert probe.stdout.strip().startswith(str(site))
 

@@ -13,18 +13,18 @@ import numpy as np
 import pytest
 
 from conftest import ROOT, run_cli
-from ftstab_mj import native
+from ftstab_mj.simulation import native
 from ftstab_mj.control import LAWS, Law, LawOutput, Param, register_law
 from ftstab_mj.control.law import non_negative, unregister_law
-from ftstab_mj.disturbances import Signal
-from ftstab_mj.errors import ScenarioError
+from ftstab_mj.plants.disturbances import Signal
+from ftstab_mj.config.errors import ScenarioError
 from ftstab_mj.plants import PLANTS, make_plant, register_plant
 from ftstab_mj.plants.cart import CartPlant
-from ftstab_mj.records import LOOP_FIELDS
+from ftstab_mj.simulation.records import LOOP_FIELDS
 from ftstab_mj.scenario import LoopSpec, scenario_from_dict, scenario_to_dict
 from ftstab_mj.scenario.run import run_scenario
-from ftstab_mj.sim import Simulation
-from ftstab_mj.tomlfile import read_toml
+from ftstab_mj.simulation.run_loop import Simulation
+from ftstab_mj.config.tomlfile import read_toml
 
 
 class ToyPI(Law):

@@ -35,7 +35,7 @@ import numpy as np
 from ftstab_mj.control.hong import HongController
 from ftstab_mj.control.hong_terms import SLOTS, SimplifiedTerms, Terms, _power, exp_of
 from ftstab_mj.control.interval import Dual, Exp, Iv, _dn, _up, affine_remainder, secant_slope
-from ftstab_mj.errors import ParameterError
+from ftstab_mj.config.errors import ParameterError
 
 DEFAULT_SAMPLES = 20_000  # witness search: states sampled on the faces before the B&B
 DEFAULT_SEED = 0

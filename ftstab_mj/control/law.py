@@ -33,8 +33,8 @@ from typing import Any, Callable, ClassVar, NamedTuple
 
 import numpy as np
 
-from ftstab_mj.errors import ParameterError
-from ftstab_mj.validate import non_negative, one_of, open_unit_interval, positive  # noqa: F401 - the checks Params use
+from ftstab_mj.config.errors import ParameterError
+from ftstab_mj.config.validate import non_negative, one_of, open_unit_interval, positive  # noqa: F401 - the checks Params use
 
 REQUIRED = object()  # Param.default of a parameter the scenario must give
 

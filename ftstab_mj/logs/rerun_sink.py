@@ -36,11 +36,11 @@ import math
 
 import numpy as np
 
-from ftstab_mj.errors import LogWriteError
+from ftstab_mj.config.errors import LogWriteError
 from ftstab_mj.logs.files import Pump, can_pump, create_log, discard, write_errors
 from ftstab_mj.logs.scene import PLANE_HALF_THICKNESS, model_shapes, quat_rotate
-from ftstab_mj.metrics import bound_applies, envelope, envelope_kind, loop_certificate, stage_reasons, time_bound
-from ftstab_mj.records import RunInfo, SampleBatch, format_table
+from ftstab_mj.metrics.run_metrics import bound_applies, envelope, envelope_kind, loop_certificate, stage_reasons, time_bound
+from ftstab_mj.simulation.records import RunInfo, SampleBatch, format_table
 
 TIMELINE = "sim_time"
 WHAT = "Rerun recording"

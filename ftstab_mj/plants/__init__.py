@@ -32,7 +32,7 @@ from __future__ import annotations
 import importlib
 import pkgutil
 
-from ftstab_mj.errors import ParameterError
+from ftstab_mj.config.errors import ParameterError
 from ftstab_mj.plants.base import PLANTS, Plant, register_plant
 
 for _module in pkgutil.iter_modules(__path__):  # every plant module registers its models

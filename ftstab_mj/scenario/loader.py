@@ -22,16 +22,16 @@ from pathlib import Path
 
 import numpy as np
 
-from ftstab_mj import keypath
+from ftstab_mj.config import keypath
 from ftstab_mj.control import law_class
-from ftstab_mj.disturbances import KEYS_BY_KIND, MAX_VALUE, Signal
-from ftstab_mj.errors import ParameterError, ScenarioError
-from ftstab_mj.records import MetricSettings
+from ftstab_mj.plants.disturbances import KEYS_BY_KIND, MAX_VALUE, Signal
+from ftstab_mj.config.errors import ParameterError, ScenarioError
+from ftstab_mj.simulation.records import MetricSettings
 from ftstab_mj.scenario.schema import (
     COMPUTED, EXTERNAL_CHECKS, SIGNAL_DERIVED, ControllerSpec, LoopSpec, PlantSpec, Scenario, SensorSpec,
 )
-from ftstab_mj.tomlfile import parse_text, read_toml
-from ftstab_mj.validate import LIMITS, Reader, describe, limit_text, whole_steps
+from ftstab_mj.config.tomlfile import parse_text, read_toml
+from ftstab_mj.config.validate import LIMITS, Reader, describe, limit_text, whole_steps
 
 _SIGNAL_ROLES = {"disturbance": 1, "gain": 2, "sensor": 3}
 
@@ -161,7 +161,7 @@ def _check(sc: Scenario, rd: _Reader) -> Scenario:
 
 def _check_stages(lp: LoopSpec, r: int, rd: _Reader) -> None:
     """The sensor, observer and actuator of a loop fit together and fit its chain length r."""
-    from ftstab_mj.loop_stages.levant import MAX_TOTAL_ORDER
+    from ftstab_mj.simulation.stages.differentiator import MAX_TOTAL_ORDER
 
     p = f"loops.{lp.name}"
     sensor, obs = lp.sensor, lp.observer

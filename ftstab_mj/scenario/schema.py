@@ -29,9 +29,9 @@ from dataclasses import MISSING, dataclass, field, make_dataclass
 
 from ftstab_mj.control.law import LAWS, Law, law_class, on_register, scenario_params
 from ftstab_mj.control.laws.paper import COMPUTED, bound
-from ftstab_mj.disturbances import Signal
-from ftstab_mj.records import MetricSettings
-from ftstab_mj.validate import box_count, fraction, identifier, non_negative, one_line, one_of, positive, state_limit, time_step
+from ftstab_mj.plants.disturbances import Signal
+from ftstab_mj.simulation.records import MetricSettings
+from ftstab_mj.config.validate import box_count, fraction, identifier, non_negative, one_line, one_of, positive, state_limit, time_step
 
 INTEGRATORS = ("euler", "implicitfast", "rk4")
 
@@ -150,7 +150,7 @@ def channel_values(v):
 
 @dataclass(frozen=True)
 class SensorSpec:
-    """What the controller reads of z (ftstab_mj/loop_stages/sensor.py). A number for noise or
+    """What the controller reads of z (ftstab_mj/simulation/stages/sensor.py). A number for noise or
     quantum applies to every measured channel; an array gives one value per channel."""
 
     measured: str = field(default="state", metadata=meta(
@@ -172,7 +172,7 @@ OBSERVER_KINDS = ("levant", "levant_filtering")
 @dataclass(frozen=True)
 class ObserverSpec:
     """Levant's robust exact differentiator rebuilding z_2..z_r from the measured z_1
-    (ftstab_mj/loop_stages/levant.py); ``levant_filtering`` is its filtering variant."""
+    (ftstab_mj/simulation/stages/differentiator.py); ``levant_filtering`` is its filtering variant."""
 
     kind: str = field(metadata=meta("the observer", one_of(*OBSERVER_KINDS)))
     L: float = field(metadata=meta("bound on |z_1^(order+1)| (chain units: m/s^(order+1))", positive))
@@ -184,7 +184,7 @@ class ObserverSpec:
 
 @dataclass(frozen=True)
 class ActuatorSpec:
-    """What the plant receives when the law asks for u (ftstab_mj/loop_stages/actuator.py), chain units."""
+    """What the plant receives when the law asks for u (ftstab_mj/simulation/stages/actuator.py), chain units."""
 
     u_max: float | None = field(default=None, metadata=meta("saturation |u| <= u_max (default: none)", positive))
     rate_max: float | None = field(default=None, metadata=meta(
@@ -200,7 +200,7 @@ class LoopSpec:
     """One control loop (one actuated joint): initial state, controller, phi(t), gamma(t).
 
     The one loop description of the project: the scenario loader builds it from [loops.<name>]
-    (controller: a ControllerSpec) and ftstab_mj.sim runs it (controller: a ControllerSpec, built
+    (controller: a ControllerSpec) and ftstab_mj.simulation.run_loop runs it (controller: a ControllerSpec, built
     for the plant's r, or a law object following ftstab_mj.control.Law).
     """
 

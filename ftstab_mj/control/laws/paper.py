@@ -26,7 +26,7 @@ from ftstab_mj.control import implicit
 from ftstab_mj.control.hong import HongController
 from ftstab_mj.control.law import (Law, LawOutput, Param, non_negative, one_of, open_unit_interval, positive,
                                    register_law)
-from ftstab_mj.errors import ParameterError
+from ftstab_mj.config.errors import ParameterError
 
 COMPUTED = "computed"  # a robust bound given as this word is the plant's bound (scenario loader)
 

@@ -35,7 +35,7 @@ from ftstab_mj.control import implicit
 from ftstab_mj.control.hong import sig
 from ftstab_mj.control.law import Law, LawOutput, Param, positive, register_law
 from ftstab_mj.control.laws.paper import EPS
-from ftstab_mj.errors import ParameterError
+from ftstab_mj.config.errors import ParameterError
 
 
 def _positive(name, value):
