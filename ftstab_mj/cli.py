@@ -1,4 +1,7 @@
-"""The ``ftstab`` command. Exit codes: 0 success, 1 a check failed, 2 bad input (one line, no traceback)."""
+"""Layer 10, the command line: the ``ftstab`` command. Exit codes: 0 success, 1 a check failed, 2 bad input (one line, no traceback).
+
+May import: every layer below.
+"""
 
 from __future__ import annotations
 

@@ -10,7 +10,8 @@ import pytest
 
 from conftest import run_cli
 from ftstab_mj.control import HongController, NominalLaw, certify
-from ftstab_mj.control.design import default_gain_max, design, nelder_mead
+from ftstab_mj.control.design import default_gain_max, design
+from ftstab_mj.control.nelder_mead import nelder_mead
 from ftstab_mj.control.linear_limit import linear_c
 from ftstab_mj.metrics.certificate_cache import cached_certify
 from ftstab_mj.simulation.ideal_chain import simulate_chain

@@ -116,7 +116,7 @@ def test_theorem3_bounds_of_absurd_but_finite_parameters_are_infinite_not_an_ove
 def test_a_run_out_of_memory_mid_way_closes_its_logs_as_failed_in_one_line(tmp_path, capsys, monkeypatch):
     """Point 2's other half: a MemoryError in the third batch (as a machine short of memory gives)
     ends `ftstab run` with exit 1, one line, and logs that hold the first batches and say "failed"."""
-    from ftstab_mj.simulation import run_loop
+    from ftstab_mj.simulation import run_loop as sim
     from ftstab_mj.logs.reader import read_log
 
     advance, calls = sim.Simulation.advance, []

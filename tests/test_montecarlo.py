@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from conftest import run_cli
 
-from ftstab_mj.metrics.run_metrics import run_metrics as mt
+from ftstab_mj.metrics import run_metrics as mt
 from ftstab_mj.studies import montecarlo as mc
 from ftstab_mj.simulation.ideal_chain import simulate_chain
 from ftstab_mj.scenario import find_scenario, load_scenario

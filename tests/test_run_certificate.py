@@ -81,7 +81,7 @@ def _metrics_with(cert_of, duration=2.0):
     c') whose certificate is cert_of(r, k, gains, form, box limit, progress)."""
     from synthetic_runs import synthetic_run
 
-    from ftstab_mj.metrics.run_metrics import run_metrics as mt
+    from ftstab_mj.metrics import run_metrics as mt
     from ftstab_mj.plants.disturbances import Signal
 
     info, loops, _, _ = synthetic_run("adaptive", duration=duration, with_model=False, phi=Signal("constant", 0.5))
@@ -214,8 +214,8 @@ def test_the_certificates_are_computed_before_any_log_opens_with_a_progress_line
     in the cache), calling progress with a line naming the loop and its limit while the branch and
     bound runs (here from its start: PROGRESS_AFTER = 0), then "" (clear the line); a second run finds it
     cached and says nothing but ""."""
-    from ftstab_mj.metrics.run_metrics import certificate_cache as cc
-    from ftstab_mj.metrics.run_metrics import run_metrics as mt
+    from ftstab_mj.metrics import certificate_cache as cc
+    from ftstab_mj.metrics import run_metrics as mt
     from ftstab_mj.scenario import find_scenario, load_scenario
     from ftstab_mj.scenario.run import run_scenario
 
@@ -260,7 +260,7 @@ def test_processes_that_miss_the_cache_at_once_compute_the_certificate_once(tmp_
     child = """
 import sys, time
 from pathlib import Path
-from ftstab_mj.metrics.run_metrics import certificate_cache as cc
+from ftstab_mj.metrics import certificate_cache as cc
 calls = []
 real = cc._cert.certify
 cc._cert.certify = lambda *a, **k: calls.append(1) or real(*a, **k)
@@ -284,8 +284,8 @@ print(len(calls), repr(c.c_lower), c.boxes)
 def test_replay_of_a_log_from_another_machine_shows_the_certificates_progress(tmp_path, monkeypatch):
     """A log whose certificate is not in this machine's cache: stream_metrics computes it before
     the metrics, with the same status lines as a run (and "" at the end), and the same metrics."""
-    from ftstab_mj.metrics.run_metrics import certificate_cache as cc
-    from ftstab_mj.metrics.run_metrics import run_metrics as mt
+    from ftstab_mj.metrics import certificate_cache as cc
+    from ftstab_mj.metrics import run_metrics as mt
     from ftstab_mj.cli import main
     from ftstab_mj.logs.reader import stream_metrics
 

@@ -1,6 +1,7 @@
 """Error hierarchy. Every user-facing error subclasses a builtin so callers can catch broadly.
 
-Messages name the parameter (or key path), what is allowed, and what was given.
+Messages name the parameter (or key path), what is allowed, and what was given (:func:`describe`
+shows a found value the way the user wrote it).
 """
 
 
@@ -48,3 +49,27 @@ class LogWriteError(FtstabError, RuntimeError):
     def __init__(self, path, cause: str):
         self.path, self.cause = str(path), cause
         super().__init__(f"{self.path}: {cause}")
+
+
+def describe(value) -> str:
+    """A found value as the user wrote it, with its TOML type: ``'abc' (a string)``."""
+    kind = {bool: "a boolean", int: "an integer", float: "a float", str: "a string", list: "an array",
+            tuple: "an array", dict: "a table"}.get(type(value), type(value).__name__)
+    if isinstance(value, (list, tuple, dict)):
+        text = f"{len(value)} item(s)" if len(value) > 8 else _short(value)
+    elif isinstance(value, bool):
+        text = str(value).lower()
+    elif isinstance(value, int) and abs(value) > 10 ** 30:  # its repr is as long as its digits (or refused)
+        text = f"{'-' if value < 0 else ''}~2^{abs(value).bit_length() - 1}"
+    else:
+        text = repr(value)
+    if len(text) > 60:
+        text = text[:57] + "..."
+    return f"{text} ({kind})"
+
+
+def _short(value) -> str:
+    try:
+        return repr(value)  # small containers only; depth is bounded before anything is described
+    except RecursionError:  # pragma: no cover - check_structure refuses such data first
+        return "(deeply nested)"

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import re
 
-from ftstab_mj.config.errors import ScenarioError
+from ftstab_mj.config.errors import ScenarioError, describe
 
 _BARE = re.compile(r"^[A-Za-z0-9_-]+$")  # a TOML bare key
 _PATH = re.compile(r"^[A-Za-z0-9_-]+(\[\d+\])*(\.[A-Za-z0-9_-]+(\[\d+\])*)*$")
@@ -97,7 +97,6 @@ def assign(data: dict, parts, value, source: str) -> None:
     law's parameters for another's). Raises ScenarioError(source, ...) when a part of the path is an
     array index that does not exist or a key under something that is not a table.
     """
-    from ftstab_mj.config.validate import describe
 
     node, path = data, ""
     for part, nxt in zip(parts, list(parts[1:]) + [None]):

@@ -23,7 +23,7 @@ import typing
 from dataclasses import MISSING, fields, is_dataclass
 
 from ftstab_mj.config import keypath
-from ftstab_mj.config.errors import ScenarioError
+from ftstab_mj.config.errors import ScenarioError, describe
 
 # -- limits, with the reason each one is stated for ---------------------------------------------------
 INT64 = (-(2 ** 63), 2 ** 63 - 1)
@@ -47,30 +47,6 @@ LIMITS = {
 def limit_text(what: str, unit: str) -> str:
     value, reason = LIMITS[what]
     return f"at most {value:.0e} {unit} ({reason})".replace("e+0", "e")
-
-
-def describe(value) -> str:
-    """A found value as the user wrote it, with its TOML type: ``'abc' (a string)``."""
-    kind = {bool: "a boolean", int: "an integer", float: "a float", str: "a string", list: "an array",
-            tuple: "an array", dict: "a table"}.get(type(value), type(value).__name__)
-    if isinstance(value, (list, tuple, dict)):
-        text = f"{len(value)} item(s)" if len(value) > 8 else _short(value)
-    elif isinstance(value, bool):
-        text = str(value).lower()
-    elif isinstance(value, int) and abs(value) > 10 ** 30:  # its repr is as long as its digits (or refused)
-        text = f"{'-' if value < 0 else ''}~2^{abs(value).bit_length() - 1}"
-    else:
-        text = repr(value)
-    if len(text) > 60:
-        text = text[:57] + "..."
-    return f"{text} ({kind})"
-
-
-def _short(value) -> str:
-    try:
-        return repr(value)  # small containers only; depth is bounded before anything is described
-    except RecursionError:  # pragma: no cover - check_structure refuses such data first
-        return "(deeply nested)"
 
 
 # -- field checks: value -> None if allowed, else the text of what is allowed -------------------------

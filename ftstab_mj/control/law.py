@@ -87,6 +87,13 @@ class Law:
     params: ClassVar[tuple[Param, ...]] = ()  # its own (LoopInfo.law_params)
     lyapunov: ClassVar[bool] = False  # V1, dV1_dzr are a Lyapunov function and its gradient
     native_code: ClassVar[int | None] = None  # the law's number in kernel.c (None: no native twin)
+    # What the law guarantees: metrics, report, viewers, stages and expectations read these, never its name.
+    # time_bound: Theorem 1's envelope and T(z0) = V1(z0)^(1 - alpha) / (c (1 - alpha)) hold, from the
+    # certificate of ``hong`` (c, alpha), whenever :meth:`bound_holds` says so for the plant's true bounds.
+    time_bound: ClassVar[bool] = False
+    # u_bound_from_V1: u = gamma_hat u0 + phi_hat sign(u0) with constant gamma_hat, phi_hat, and V1 does not
+    # grow along the guaranteed solution, so sup |u| over {V1 <= V1(z0)} bounds what the law asks for.
+    u_bound_from_V1: ClassVar[bool] = False
 
     r: int  # chain length the law controls
 
@@ -99,6 +106,19 @@ class Law:
         """The law for chain length r from {param name: value} (every declared param, defaults filled).
         Raises ParameterError naming the parameter."""
         raise NotImplementedError
+
+    @classmethod
+    def bound_holds(cls, params: dict, phibar: float, gamma_m: float, gamma_M: float) -> bool:
+        """Whether the law's time bound is a guarantee on a plant whose true bounds (chain units) are
+        |phi| <= phibar and gamma_m <= gamma <= gamma_M; params: the law's own (LoopInfo.law_params).
+        Only asked of a law with ``time_bound``, and only with a certificate."""
+        return False
+
+    @classmethod
+    def ultimate_bound(cls, params: dict) -> dict | None:
+        """Theorem 3's adaptation constants {kappa, delta, rate, eps} when the law has its ultimate
+        bounds (limsup V1 <= Delta, liminf V1 <= eps), else None; params as for :meth:`bound_holds`."""
+        return None
 
     @property
     def state_size(self) -> int:
@@ -165,6 +185,12 @@ def unregister_law(name: str) -> None:
 def on_register(listener: Callable[[], None]) -> None:
     """Call ``listener()`` after every registration (the scenario schema rebuilds its ControllerSpec)."""
     _listeners.append(listener)
+
+
+def declared(name: str) -> type[Law] | None:
+    """The registered law ``name`` (a log's LoopInfo.law), or None when this process does not know it
+    (a log written with a plugin that is not loaded): nothing is then claimed for it."""
+    return LAWS.get(name)
 
 
 def law_class(name: str) -> type[Law]:

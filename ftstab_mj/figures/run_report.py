@@ -41,6 +41,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ftstab_mj.config.errors import FtstabError, LogWriteError
+from ftstab_mj.control.law import declared
 from ftstab_mj.logs.reader import LogData
 
 FORMATS = (".png", ".html")
@@ -141,7 +142,8 @@ def _v1_panel(lp, m: dict, a: dict, t: np.ndarray, settle_level: float) -> Panel
     t0, t_end = float(t[0]), float(t[-1])
     curves = [Curve("V1", t, V1, color="C0"),
               Curve(f"settle level {settle_level:g}", np.empty(0), np.array([settle_level]), "hline", ":", "0.4")]
-    if lp.law in ("nominal", "robust") and m.get("time_bound") is not None:
+    law = declared(lp.law)
+    if law is not None and law.time_bound and m.get("time_bound") is not None:
         et, bound, T = envelope(loop_certificate(lp), float(V1[0]), t_end - t0, T=m["time_bound"])
         kind = envelope_kind(m)
         after = "" if t0 + T <= t_end else ", after the end of the run"

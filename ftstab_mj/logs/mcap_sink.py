@@ -28,7 +28,7 @@ import orjson
 
 from ftstab_mj.config.errors import LogWriteError
 from ftstab_mj.logs.files import Reserve, create_log, discard, write_errors
-from ftstab_mj.logs.encoding import SCHEMA_NAME, LoopLayout, _varint
+from ftstab_mj.logs.encoding import SCHEMA_NAME, LoopLayout, varint
 from ftstab_mj.logs.mcap_file import McapFile
 from ftstab_mj.logs.scene import model_shapes
 from ftstab_mj.simulation.records import RunInfo, SampleBatch
@@ -170,7 +170,7 @@ def frame_transforms_bytes(times_ns, names, pos, quat) -> list[bytes]:
 def _bytes_field(tag: int, text: str) -> bytes:
     """A protobuf string field (left out when empty, as proto3 does)."""
     data = text.encode()
-    return bytes([tag]) + _varint(len(data)) + data if data else b""
+    return bytes([tag]) + varint(len(data)) + data if data else b""
 
 
 class McapSink:

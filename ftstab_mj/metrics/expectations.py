@@ -24,9 +24,10 @@ from dataclasses import dataclass, field, fields
 
 from ftstab_mj.config import keypath
 from ftstab_mj.control.certificate import DEFAULT_RTOL
-from ftstab_mj.config.errors import ScenarioError
+from ftstab_mj.control.law import declared
+from ftstab_mj.config.errors import ScenarioError, describe
 from ftstab_mj.config.tomlfile import dumps, read_toml
-from ftstab_mj.config.validate import Reader, describe, non_negative
+from ftstab_mj.config.validate import Reader, non_negative
 
 
 class ExpectationError(ScenarioError):
@@ -301,9 +302,16 @@ def _theorem3_pins(th: dict, c: _Bracket, cp: _Bracket, hong: dict) -> dict:
     return out
 
 
+def _adaptation_rate(lp) -> float | None:
+    """The rate of phi_hat of a law with Theorem 3's ultimate bounds (it sets phi_hat's tolerance), else None."""
+    law = declared(lp.law)
+    ultimate = law.ultimate_bound(lp.law_params) if law is not None else None
+    return ultimate["rate"] if ultimate else None
+
+
 def pin_expectations(metrics: dict, info) -> dict:
     """An expectation tree for ``metrics`` of the run described by ``info`` (records.RunInfo)."""
-    rates = {lp.name: (lp.law_params.get("rate") if lp.law == "adaptive" else None) for lp in info.loops}
+    rates = {lp.name: (_adaptation_rate(lp)) for lp in info.loops}
     hongs = {lp.name: lp.hong for lp in info.loops}
     return {"status": metrics["status"], "n_samples": metrics["n_samples"],
             "loops": {name: pin_loop(m, info.period, rates[name], hongs[name]) for name, m in metrics["loops"].items()}}

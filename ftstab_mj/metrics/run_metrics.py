@@ -29,6 +29,7 @@ import warnings
 
 import numpy as np
 
+from ftstab_mj.control.law import declared
 from ftstab_mj.simulation.records import RunInfo, format_table  # noqa: F401 - format_table is part of this API
 
 
@@ -164,24 +165,28 @@ def _is_finite_number(x) -> bool:
     return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
 
 
+def _ultimate_bound(loop) -> dict | None:
+    """Theorem 3's constants of ``loop``'s law when it declares its ultimate bounds, else None."""
+    law = declared(loop.law)
+    return law.ultimate_bound(loop.law_params) if law is not None else None
+
+
 def bound_applies(loop) -> bool:
     """Whether Theorem 1's time bound T(z0) is a guarantee for this loop (chain units).
 
-    nominal: only without disturbance and with gamma = 1; robust (Theorem 2): the true bounds
-    are within the assumed ones (true_phibar <= phibar, true_gamma_m >= gamma_m); adaptive: never
-    (Theorem 3 gives ultimate bounds, not a convergence time). Never without a sound certificate
-    (status "certified": c_lower > 0).
+    Asked of the law (its ``time_bound`` and ``bound_holds``: the nominal law without disturbance and
+    with gamma = 1, the robust law when the true bounds are within the assumed ones; the adaptive law
+    never: Theorem 3 gives ultimate bounds, not a time). Never without a sound certificate (status
+    "certified": c_lower > 0), never for a law this process does not know.
     """
     if not _is_finite_number(loop.true_phibar):
         return False  # the plant's disturbance has no bound (e.g. a damped cart): nothing is guaranteed
     if loop.hong and not loop_certificate(loop).certified:
         return False  # no sound certificate (not certified, or undecided): no bound is claimed
-    if loop.law == "nominal":
-        return loop.true_phibar == 0.0 and loop.true_gamma_m == 1.0 and loop.true_gamma_M == 1.0
-    if loop.law == "robust":
-        p = loop.law_params
-        return loop.true_phibar <= p["phibar"] and loop.true_gamma_m >= p["gamma_m"]
-    return False
+    law = declared(loop.law)
+    if law is None or not law.time_bound:
+        return False
+    return bool(law.bound_holds(loop.law_params, loop.true_phibar, loop.true_gamma_m, loop.true_gamma_M))
 
 
 def stage_reasons(stages: dict | None) -> list[str]:
@@ -425,12 +430,12 @@ def theorem3_check(loop, v_max, ph_max, v_min):
     """
     from ftstab_mj.control import theorem3_bounds
 
-    if loop.law != "adaptive":
+    p = _ultimate_bound(loop)
+    if p is None:
         return None
     cert = loop_certificate(loop)
     if not cert.certified or not _is_finite_number(loop.true_phibar):
         return None  # (an unbounded plant, e.g. a damped cart, gives Theorem 3 nothing to check)
-    p = loop.law_params
     b = theorem3_bounds(cert, loop.true_phibar, loop.true_gamma_m, p["kappa"], p["delta"], p["rate"], p["eps"])
     v_max, ph_max, v_min = float(v_max), float(ph_max), float(v_min)
     return {
@@ -695,7 +700,8 @@ class _LoopStream:
     def __init__(self, info: RunInfo, loop, n_total: int | None):
         self.info, self.loop = info, loop
         ms = info.metric_settings
-        self.eps = float(loop.law_params["eps"]) if loop.law == "adaptive" else ms.settle_level
+        ultimate = _ultimate_bound(loop)
+        self.eps = float(ultimate["eps"]) if ultimate else ms.settle_level
         self.settle = _SettleTracker(ms.settle_level)
         self.settle_z1 = _SettleTracker(ms.settle_z1)
         self.n = 0

@@ -1,4 +1,6 @@
-"""MuJoCo plants that the paper's controllers stabilize: build one from plain values with make_plant.
+"""Layer 3, plants: MuJoCo plants that the laws stabilize; build one from plain values with make_plant.
+
+May import: config, control. (The disturbance signals and MuJoCo's control-callback slot live here too.)
 
     plant = make_plant("cart", {"mass": 2.0})
 

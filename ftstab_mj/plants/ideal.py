@@ -13,7 +13,7 @@ exactly by :meth:`IdealChainPlant.step` and MuJoCo only holds and shows the stat
 * one physics step of length h (``step``, in place of ``mj_step``): ``mj_forward`` (the control
   callback samples there, ftstab_mj/simulation/run_loop.py, and the kinematics of the view are computed), then, with
   w = qfrc_applied + ctrl held over the step, z(t + h) = Phi(h) z(t) + G(h) w with
-  Phi_ij = h^(j-i) / (j-i)! (j >= i) and G_i = h^(r-i+1) / (r-i+1)! (ftstab_mj.simulation.ideal_chain.chain_transition),
+  Phi_ij = h^(j-i) / (j-i)! (j >= i) and G_i = h^(r-i+1) / (r-i+1)! (ftstab_mj.control.chain.chain_transition),
   which is exact for a piecewise-constant input, and time += h.
 
 So a run is the ideal chain of ftstab_mj.simulation.ideal_chain.simulate_chain with ``substeps`` = physics
@@ -29,7 +29,7 @@ import mujoco
 import numpy as np
 
 from ftstab_mj.config.errors import ParameterError
-from ftstab_mj.simulation.ideal_chain import chain_transition
+from ftstab_mj.control.chain import chain_transition
 from ftstab_mj.plants.base import Plant, check_keys, register_plant
 
 R_MAX = 6  # chain lengths 1..R_MAX (those the certificate handles)

@@ -25,13 +25,13 @@ import numpy as np
 from ftstab_mj.config import keypath
 from ftstab_mj.control import law_class
 from ftstab_mj.plants.disturbances import KEYS_BY_KIND, MAX_VALUE, Signal
-from ftstab_mj.config.errors import ParameterError, ScenarioError
+from ftstab_mj.config.errors import ParameterError, ScenarioError, describe
 from ftstab_mj.simulation.records import MetricSettings
 from ftstab_mj.scenario.schema import (
     COMPUTED, EXTERNAL_CHECKS, SIGNAL_DERIVED, ControllerSpec, LoopSpec, PlantSpec, Scenario, SensorSpec,
 )
 from ftstab_mj.config.tomlfile import parse_text, read_toml
-from ftstab_mj.config.validate import LIMITS, Reader, describe, limit_text, whole_steps
+from ftstab_mj.config.validate import LIMITS, Reader, limit_text, whole_steps
 
 _SIGNAL_ROLES = {"disturbance": 1, "gain": 2, "sensor": 3}
 

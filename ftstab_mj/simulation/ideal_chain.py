@@ -13,7 +13,6 @@ This is the reference the MuJoCo plants are checked against.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from math import factorial
 
 import numpy as np
 
@@ -21,16 +20,7 @@ from ftstab_mj.simulation import native as native_path
 from ftstab_mj.control.laws import advance_phi_hat
 from ftstab_mj.plants.disturbances import Signal
 from ftstab_mj.config.errors import ParameterError
-
-
-def chain_transition(r: int, h: float) -> tuple[np.ndarray, np.ndarray]:
-    """(Phi (r, r), G (r,)) with z(t+h) = Phi z(t) + G w for the chain driven by a constant w."""
-    Phi = np.zeros((r, r))
-    for i in range(r):
-        for j in range(i, r):
-            Phi[i, j] = h ** (j - i) / factorial(j - i)
-    G = np.array([h ** (r - i) / factorial(r - i) for i in range(r)])
-    return Phi, G
+from ftstab_mj.control.chain import chain_transition
 
 
 @dataclass

@@ -41,7 +41,7 @@ UNLIMITED_RUN_BOXES = 20_000_000
 class LoopInfo:
     """Everything metrics need to know about one control loop, independent of the scenario schema.
 
-    law: "nominal" | "robust" | "adaptive"; hong: {"r", "k", "gains", "form"};
+    law: a registered law's name (its declarations: control/law.py); hong: {"r", "k", "gains", "form"};
     law_params: robust {"phibar", "gamma_m"}, adaptive {"kappa", "delta", "rate", "eta", "eps"}, nominal {};
     true_phibar: sup |phi| of the disturbance actually injected, chain units (for Theorem 3's bounds);
     true_gamma_m, true_gamma_M: range of the true gain gamma(t), chain units.

@@ -64,13 +64,15 @@ from ftstab_mj.simulation.native import run as native_run
 from ftstab_mj.plants.base import Plant
 from ftstab_mj.simulation.records import (COMPLETED, DIVERGED, INTERRUPTED, LOOP_FIELDS, LoopInfo,
                                MetricSettings, RunInfo, SampleBatch)
-from ftstab_mj.scenario.schema import LoopSpec
 from ftstab_mj.config.validate import whole_steps
 
 # MuJoCo warnings that mean the simulation blew up (MuJoCo resets the data when they fire).
 _DIVERGENCE_WARNINGS = (mujoco.mjtWarning.mjWARN_BADQPOS, mujoco.mjtWarning.mjWARN_BADQVEL,
                         mujoco.mjtWarning.mjWARN_BADQACC, mujoco.mjtWarning.mjWARN_BADCTRL)
 _SCALARS = tuple(f for f in LOOP_FIELDS if f not in ("t", "z"))
+# What the loop reads of a loop description: ftstab_mj.scenario.LoopSpec has them (the scenario layer
+# sits above this one, so the loop asks for the fields instead of the class).
+_LOOP_FIELDS = ("name", "z0", "law", "disturbance", "gain", "ref", "sensor", "observer", "actuator")
 
 
 @dataclass
@@ -176,7 +178,7 @@ class Simulation:
         loops = tuple(loops)
         by_name, laws = {}, {}
         for L in loops:
-            if not isinstance(L, LoopSpec):
+            if not all(hasattr(L, a) for a in _LOOP_FIELDS):
                 raise ParameterError("loops", "LoopSpec entries", L)
             if L.name not in plant.loop_names:
                 raise ParameterError("loops.name", f"a loop of {plant.model_name!r} ({', '.join(plant.loop_names)})", L.name)

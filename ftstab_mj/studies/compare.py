@@ -46,9 +46,9 @@ from pathlib import Path
 import numpy as np
 
 from ftstab_mj.config import keypath
-from ftstab_mj.config.errors import ScenarioError, SweepError
+from ftstab_mj.config.errors import ScenarioError, SweepError, describe
 from ftstab_mj.simulation.records import COMPLETED
-from ftstab_mj.scenario.loader import apply_override, describe, scenario_with
+from ftstab_mj.scenario.loader import apply_override, scenario_with
 from ftstab_mj.scenario.schema import identifier, one_line
 from ftstab_mj.config.tomlfile import read_toml
 

@@ -33,7 +33,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ftstab_mj.metrics.run_metrics import run_metrics as mt
+from ftstab_mj.metrics import run_metrics as mt
 from ftstab_mj.config.errors import ScenarioError
 from ftstab_mj.simulation.records import LoopInfo
 

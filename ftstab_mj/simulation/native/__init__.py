@@ -190,6 +190,18 @@ def chain_threads(n_traj: int) -> int:
     return max(1, min(cpus, n_traj // 64))
 
 
+def require_buffer(name: str, a, shape: tuple) -> None:
+    """The C side writes ``a`` as a C-contiguous float64 block of ``shape``: anything else is a
+    ValueError here (a raised check, kept under ``python -O``), never a write out of bounds."""
+    if not isinstance(a, np.ndarray) or a.dtype != np.float64 or not a.flags.c_contiguous or not a.flags.writeable:
+        what = type(a).__name__ if not isinstance(a, np.ndarray) else (
+            f"{a.dtype}, {'C-contiguous' if a.flags.c_contiguous else 'not C-contiguous'}"
+            f"{'' if a.flags.writeable else ', read-only'}")
+        raise ValueError(f"native buffer {name}: expected a writable C-contiguous float64 array, got {what}")
+    if a.shape != tuple(shape):
+        raise ValueError(f"native buffer {name}: expected shape {tuple(shape)}, got {a.shape}")
+
+
 def simulate_chain_kernel(law, z: np.ndarray, phi_hat: np.ndarray, nsteps: int, substeps: int, period: float,
                           Phi: np.ndarray, G: np.ndarray, phi_in: FtInput, gam_in: FtInput, threads: int = 1):
     """Run the ideal chain in C (see ideal_chain.simulate_chain, which prepares the arguments).
@@ -199,7 +211,6 @@ def simulate_chain_kernel(law, z: np.ndarray, phi_hat: np.ndarray, nsteps: int, 
     threads: trajectories are split over that many threads (POSIX; the result is the same).
     """
     lib = _require()
-    from ftstab_mj.simulation.native.run import require_buffer
 
     n, r = z.shape
     require_buffer("z", z, (n, law.r))  # advanced in place by the C code

@@ -23,7 +23,7 @@ import mujoco
 import numpy as np
 
 from ftstab_mj.simulation import native
-from ftstab_mj.simulation.native import FtInput, FtLaw, pack_law
+from ftstab_mj.simulation.native import FtInput, FtLaw, pack_law, require_buffer
 
 MAXLOOPS = 8  # FT_MAXLOOPS in kernel.c
 INTEGRATORS = ("euler", "implicitfast")  # one forward pass (one callback call) per step
@@ -181,18 +181,6 @@ def unsupported(plant, laws, loops, integrator: str) -> str:
         if law.state_size > 1:
             return f"the native callback keeps at most one state per law, {law.name!r} has {law.state_size}"
     return ""
-
-
-def require_buffer(name: str, a, shape: tuple) -> None:
-    """The C side writes ``a`` as a C-contiguous float64 block of ``shape``: anything else is a
-    ValueError here (a raised check, kept under ``python -O``), never a write out of bounds."""
-    if not isinstance(a, np.ndarray) or a.dtype != np.float64 or not a.flags.c_contiguous or not a.flags.writeable:
-        what = type(a).__name__ if not isinstance(a, np.ndarray) else (
-            f"{a.dtype}, {'C-contiguous' if a.flags.c_contiguous else 'not C-contiguous'}"
-            f"{'' if a.flags.writeable else ', read-only'}")
-        raise ValueError(f"native buffer {name}: expected a writable C-contiguous float64 array, got {what}")
-    if a.shape != tuple(shape):
-        raise ValueError(f"native buffer {name}: expected shape {tuple(shape)}, got {a.shape}")
 
 
 def _require_indices(name: str, idx: np.ndarray, size: int) -> None:

@@ -126,10 +126,10 @@ def control_needed(law, z0, samples: int = 20000, seed: int = 0) -> tuple[float 
     so u_needed is an estimate from below: u_max below it certainly starves the guarantee, u_max
     above it is only estimated to suffice.
     """
-    from ftstab_mj.control.certificate import _refine_max, unit_level_set_points
+    from ftstab_mj.control.certificate import refine_max, unit_level_set_points
 
     hong = getattr(law, "hong", None)
-    if getattr(law, "name", "") not in ("nominal", "robust") or hong is None or hong.form != "full":
+    if not getattr(law, "u_bound_from_V1", False) or hong is None or hong.form != "full":
         return None, f"the {getattr(law, 'name', type(law).__name__)!r} law's guarantee has no a priori bound on |u|"
     z0 = np.asarray(z0, dtype=float)
     out = law.evaluate(z0, law.initial_state())
@@ -142,7 +142,7 @@ def control_needed(law, z0, samples: int = 20000, seed: int = 0) -> tuple[float 
 
     vals = abs_u0(z)
     top = z[np.argsort(vals)[-64:]]
-    sup1 = max(float(np.max(vals)), _refine_max(hong, abs_u0, top, rng))
+    sup1 = max(float(np.max(vals)), refine_max(hong, abs_u0, top, rng))
     sup_u0 = max(V1_0 ** (hong.degree_u0 / hong.degree_V1) * sup1, float(abs(out.u0)))
     need = float(out.gamma_hat) * sup_u0 + float(out.phi_hat)
     return need, (f"sup |u| over V1 <= V1(z0) = {V1_0:.4g}: gamma_hat sup|u0| + phi_hat, sup|u0| sampled on "

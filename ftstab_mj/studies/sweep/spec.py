@@ -46,9 +46,9 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ftstab_mj.config import keypath
-from ftstab_mj.config.errors import SweepError
+from ftstab_mj.config.errors import SweepError, describe
 from ftstab_mj.config.tomlfile import read_toml
-from ftstab_mj.config.validate import MAX_SWEEP_ROWS, Reader, describe, identifier, one_line
+from ftstab_mj.config.validate import MAX_SWEEP_ROWS, Reader, identifier, one_line
 
 COMBINE = ("product", "zip")
 GRID_KINDS = ("range", "linspace", "logspace")  # besides a plain list of values
