@@ -411,7 +411,9 @@ def cmd_list(args) -> int:
     from ftstab_mj.control import LAWS
     from ftstab_mj.plants import PLANTS
     from ftstab_mj.scenario import SCENARIO_DIR, shipped_scenarios
+    from ftstab_mj.scenario.plugins import load_entry_points, origin
 
+    load_entry_points()  # installed distributions' laws and plants are listed with the others
     rows = shipped_scenarios()
     width = max((len(name) for name, _, _ in rows), default=0)
     for name, _, description in rows:
@@ -419,13 +421,15 @@ def cmd_list(args) -> int:
     print(f"\n{len(rows)} scenarios in {SCENARIO_DIR}; run one with: ftstab run NAME [--set key.path=value]")
     print("\nlaws (loops.<name>.controller.law) and their keys:")
     for cls in LAWS.values():
-        print(f"  {cls.name}: {cls.summary}")
+        where = origin(cls.__module__)
+        print(f"  {cls.name}: {cls.summary}" + ("" if where == "built in" else f"  [{where}]"))
         for p in cls.all_params():
             default = "" if p.required else f" [default {p.default!r}]"
             print(f"      {p.name}: {p.describe()}{default}")
     print("\nplants (plant.model):")
     for entry in PLANTS.values():
-        print(f"  {entry.name}: {entry.summary}")
+        where = origin(entry.build.__module__)
+        print(f"  {entry.name}: {entry.summary}" + ("" if where == "built in" else f"  [{where}]"))
     return 0
 
 

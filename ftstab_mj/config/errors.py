@@ -42,6 +42,10 @@ class EngineError(FtstabError, RuntimeError):
     """The execution engine of a sweep cannot be started or reached (e.g. no Dask scheduler at an address)."""
 
 
+class PluginError(FtstabError, ValueError):
+    """An installed plugin (entry point) that cannot be imported; a scenario's plugins raise ScenarioError."""
+
+
 class LogWriteError(FtstabError, RuntimeError):
     """A log could not be written during a run (disk full, quota, I/O error): not bad input (exit 1).
     path: the log file; cause: what went wrong, e.g. "cannot write the MCAP log: No space left on device"."""

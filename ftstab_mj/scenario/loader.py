@@ -23,13 +23,14 @@ from pathlib import Path
 import numpy as np
 
 from ftstab_mj.config import keypath
-from ftstab_mj.control import law_class
+from ftstab_mj.control import LAWS, law_class
 from ftstab_mj.plants.disturbances import KEYS_BY_KIND, MAX_VALUE, Signal
 from ftstab_mj.config.errors import ParameterError, ScenarioError, describe
 from ftstab_mj.simulation.records import MetricSettings
 from ftstab_mj.scenario.schema import (
     COMPUTED, EXTERNAL_CHECKS, SIGNAL_DERIVED, ControllerSpec, LoopSpec, PlantSpec, Scenario, SensorSpec,
 )
+from ftstab_mj.scenario.plugins import load_entry_points, load_plugins
 from ftstab_mj.config.tomlfile import parse_text, read_toml
 from ftstab_mj.config.validate import LIMITS, Reader, limit_text, whole_steps
 
@@ -85,8 +86,16 @@ class _Reader(Reader):
             if "name" in body:
                 raise self.error(keypath.join(p, "name"), "no 'name' key (the table key is the loop name)",
                                  "a 'name' key")
+            self.known_law(body.get("controller"), keypath.join(p, "controller"))
             out.append(LoopSpec(name=name, **self.fields_of(LoopSpec, body, p, skip=("name",))))
         return tuple(out)
+
+    def known_law(self, controller, path) -> None:
+        """An unknown law is named as such, before its keys are read (they are another law's, or none)."""
+        law = controller.get("law") if isinstance(controller, dict) else None
+        if isinstance(law, str) and law not in LAWS:
+            raise self.error(keypath.join(path, "law"), f"a registered law (known: {', '.join(LAWS)}; a law of "
+                             "your own: name its file or module in plugins = [...])", f"unknown law {law!r}")
 
     def scenario(self, raw) -> Scenario:
         if not isinstance(raw, dict):
@@ -293,6 +302,10 @@ def _derived_seed(seed: int, loop: str, role: str) -> int:
 def scenario_from_dict(raw: dict, source: str = "<scenario>", overrides: dict[str, str] | None = None) -> Scenario:
     """Validate raw scenario data (as parsed from TOML, or read back from a log) into a Scenario."""
     rd = _Reader(source, overrides)
+    load_entry_points()
+    if isinstance(raw, dict) and "plugins" in raw:  # imported before anything names what they register
+        base = Path(source).parent if source.endswith(".toml") else Path.cwd()
+        raw = {**raw, "plugins": load_plugins(raw["plugins"], base, rd.error)}
     return _check(rd.scenario(raw), rd)
 
 
@@ -378,7 +391,7 @@ def scenario_to_dict(sc: Scenario) -> dict:
             return [plain(x) for x in obj]
         return obj
 
-    d = plain(sc, skip=("plant", "loops"))
+    d = plain(sc, skip=("plant", "loops") + (() if sc.plugins else ("plugins",)))  # logs without plugins unchanged
     d["plant"] = {"model": sc.plant.model, **sc.plant.params}
     d["loops"] = {lp.name: plain(lp, skip=("name",)) for lp in sc.loops}
     return d

@@ -7,6 +7,8 @@ the log sinks, ``ftstab replay --verify`` with the scenario read back from a log
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import sys
 import time
 from dataclasses import dataclass
@@ -150,8 +152,14 @@ def verify_log(log):
     from ftstab_mj.logs.scene import check_untrusted_model
     from ftstab_mj.plants import PLANTS
     from ftstab_mj.plants.user import recorded_model
+    from ftstab_mj.scenario.plugins import load_entry_points, load_plugins
 
     scenario = rerun_scenario(log)
+    # the plugins the log pins (by absolute path and sha256) register their laws and plants first
+    load_entry_points()
+    if scenario.get("plugins"):
+        load_plugins(scenario["plugins"], Path.cwd(), lambda key, expected, found: LogError(
+            f"{log.path}: /scenario {key}: expected {expected}, found {found}"))
     plant = scenario.get("plant")
     model = plant.get("model") if isinstance(plant, dict) else None
     user_model = isinstance(model, str) and model.endswith(".xml") and bool(log.info.model_xml)

@@ -232,6 +232,9 @@ class Scenario:
     sim: SimSpec = field(metadata=meta("time discretisation"))
     loops: tuple[LoopSpec, ...] = field(metadata=meta("the control loops, one table per loop name"))
     seed: int = field(default=0, metadata=meta("seed of every random signal of the run", non_negative))
+    plugins: tuple[str, ...] = field(default=(), metadata=meta(
+        "Python files (relative to the scenario file) or importable modules that register laws and plants, "
+        "imported before the rest is read; the resolved scenario pins each by its sha256"))
     metrics: MetricSettings = field(default_factory=MetricSettings, metadata=meta("how metrics read the run"))
 
 
