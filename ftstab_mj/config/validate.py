@@ -355,16 +355,13 @@ class Reader:
         return out
 
 
-_HINTS: dict[type, tuple[dict, dict, tuple]] = {}  # class -> (its __dataclass_fields__, hints, fields)
+_HINTS: dict[type, tuple[dict, tuple]] = {}  # class -> (hints, fields)
 
 
 def _hints_and_fields(cls) -> tuple[dict, tuple]:
-    """The resolved type hints and the fields of dataclass ``cls``, kept per class while its field
-    table is the same object: resolving the hints (typing.get_type_hints) was the largest cost of
-    validating a sweep row (~1 ms a row), and registering a law rebuilds ControllerSpec's fields in
-    place (a new table, so the entry is redone; the entry holds the old table, so its id is not reused)."""
-    table = cls.__dataclass_fields__
+    """The resolved type hints and the fields of dataclass ``cls``, kept per class: resolving the hints
+    (typing.get_type_hints) was the largest cost of validating a sweep row (~1 ms a row)."""
     hit = _HINTS.get(cls)
-    if hit is None or hit[0] is not table:
-        hit = _HINTS[cls] = (table, typing.get_type_hints(cls), fields(cls))
-    return hit[1], hit[2]
+    if hit is None:
+        hit = _HINTS[cls] = (typing.get_type_hints(cls), fields(cls))
+    return hit

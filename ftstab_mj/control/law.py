@@ -153,38 +153,27 @@ class Law:
 
 # -- the registry ----------------------------------------------------------------------------------
 LAWS: dict[str, type[Law]] = {}
-_listeners: list[Callable[[], None]] = []
 
 
 def register_law(cls: type[Law]) -> type[Law]:
-    """Class decorator: add ``cls`` to the registry under ``cls.name`` (schema and `ftstab list` follow)."""
+    """Class decorator: add ``cls`` to the registry under ``cls.name`` (the scenario loader and `ftstab list`
+    read it from there). Each law owns its parameter table: two laws may use one key with two meanings."""
     if not (isinstance(cls.name, str) and cls.name.isidentifier()):
         raise TypeError(f"law class {cls.__name__} needs a name that is an identifier, got {cls.name!r}")
     if cls.name in LAWS and LAWS[cls.name] is not cls:
         raise TypeError(f"a law named {cls.name!r} is already registered ({LAWS[cls.name].__name__})")
-    known = scenario_params()
-    for p in cls.all_params():
-        if p.name == "law":
-            raise TypeError(f"law {cls.name!r}: 'law' names the law, it cannot be a parameter")
-        if p.name in known and known[p.name] != p:
-            raise TypeError(f"law {cls.name!r}: parameter {p.name!r} is declared differently by another law "
-                            "(share the same Param or choose another name)")
+    names = [p.name for p in cls.all_params()]
+    if "law" in names:
+        raise TypeError(f"law {cls.name!r}: 'law' names the law, it cannot be a parameter")
+    if len(set(names)) != len(names):
+        raise TypeError(f"law {cls.name!r}: a parameter is declared twice ({', '.join(names)})")
     LAWS[cls.name] = cls
-    for listener in _listeners:
-        listener()
     return cls
 
 
 def unregister_law(name: str) -> None:
-    """Remove a registered law (a test's toy law: global state put back); listeners are told."""
+    """Remove a registered law (a test's toy law: global state put back)."""
     del LAWS[name]
-    for listener in _listeners:
-        listener()
-
-
-def on_register(listener: Callable[[], None]) -> None:
-    """Call ``listener()`` after every registration (the scenario schema rebuilds its ControllerSpec)."""
-    _listeners.append(listener)
 
 
 def declared(name: str) -> type[Law] | None:
@@ -198,12 +187,3 @@ def law_class(name: str) -> type[Law]:
         return LAWS[name]
     except KeyError:
         raise ParameterError("law", "one of " + ", ".join(LAWS), name) from None
-
-
-def scenario_params() -> dict[str, Param]:
-    """Every registered law's parameters, first declaration order: the controller table's keys."""
-    out: dict[str, Param] = {}
-    for cls in LAWS.values():
-        for p in cls.all_params():
-            out.setdefault(p.name, p)
-    return out
