@@ -45,7 +45,8 @@ from ftstab_mj.control import AdaptiveLaw, HongController, RobustLaw  # noqa: E4
 from ftstab_mj.plants.disturbances import Signal  # noqa: E402
 from ftstab_mj.simulation.ideal_chain import simulate_chain  # noqa: E402
 from ftstab_mj.plants import make_plant  # noqa: E402
-from ftstab_mj.simulation.run_loop import LoopSpec, Run, Simulation  # noqa: E402
+from ftstab_mj.scenario import LoopSpec  # noqa: E402
+from ftstab_mj.simulation.run_loop import Run, Simulation  # noqa: E402
 
 STEP = 1e-3  # s, physics step and control period
 BATCH = 1000  # samples per Simulation.advance, simulate()'s default batch

@@ -14,7 +14,7 @@ from ftstab_mj.logs import McapSink, RerunSink
 from ftstab_mj.logs.reader import read_log
 from ftstab_mj.plants import make_plant
 from ftstab_mj.simulation.records import DIVERGED, FAILED, INTERRUPTED
-from ftstab_mj.simulation.run_loop import LoopSpec
+from ftstab_mj.scenario import LoopSpec
 
 HONG = HongController(2, -0.2, (1.0, 2.0))
 

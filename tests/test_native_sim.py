@@ -19,7 +19,9 @@ from ftstab_mj.simulation.native import run as native_run
 from ftstab_mj.plants import make_plant
 from ftstab_mj.plants.base import Plant
 from ftstab_mj.simulation.records import DIVERGED, LOOP_FIELDS
-from ftstab_mj.simulation.run_loop import LoopSpec, Simulation, simulate
+from ftstab_mj.scenario import LoopSpec
+
+from ftstab_mj.simulation.run_loop import Simulation, simulate
 
 TOL = 1e-12
 pytestmark = pytest.mark.skipif(not native.available(), reason=f"native kernel: {native.UNAVAILABLE_REASON}")

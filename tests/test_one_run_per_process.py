@@ -26,7 +26,8 @@ from ftstab_mj.plants.callback import CallbackBusy, control_callback
 from ftstab_mj.control import HongController, RobustLaw
 from ftstab_mj.plants.disturbances import Signal
 from ftstab_mj.plants import make_plant
-from ftstab_mj.simulation.run_loop import LoopSpec, Simulation
+from ftstab_mj.scenario import LoopSpec
+from ftstab_mj.simulation.run_loop import Simulation
 from ftstab_mj.studies.sweep.engine import guarded
 from ftstab_mj.studies.sweep.row import ScenarioTask
 from ftstab_mj.studies.sweep.table import read_table

@@ -10,7 +10,9 @@ from ftstab_mj.config.errors import ParameterError
 from ftstab_mj.metrics.run_metrics import compute_metrics, workspace_left
 from ftstab_mj.plants import make_plant
 from ftstab_mj.plants.chain_bounds import max_abs_quadratic
-from ftstab_mj.simulation.run_loop import LoopSpec, simulate
+from ftstab_mj.scenario import LoopSpec
+
+from ftstab_mj.simulation.run_loop import simulate
 
 HONG = HongController(2, -0.2, (1.0, 2.0))
 PHIS = [Signal("sine", amplitude=0.3, freq=0.5), Signal("random", amplitude=0.1, freq=2.0, seed=1)]  # N m

@@ -25,7 +25,9 @@ from ftstab_mj.control import AdaptiveLaw, HongController, RobustLaw, certify, t
 from ftstab_mj.plants.disturbances import Signal
 from ftstab_mj.simulation.ideal_chain import simulate_chain
 from ftstab_mj.plants import make_plant
-from ftstab_mj.simulation.run_loop import LoopSpec, simulate
+from ftstab_mj.scenario import LoopSpec
+
+from ftstab_mj.simulation.run_loop import simulate
 
 HONG = {2: HongController(2, -0.2, (1.0, 2.0)), 3: HongController(3, -0.1, (1.0, 1.7, 5.0))}
 Z0 = {2: (1.0, 0.0), 3: (1.0, 0.0, 0.0)}

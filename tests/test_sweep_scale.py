@@ -12,7 +12,8 @@ import sys
 import pytest
 
 from conftest import ROOT
-from ftstab_mj.studies.sweep import engine, expand, load_sweep, runner
+from ftstab_mj.studies.sweep import engine, expand, load_sweep
+from ftstab_mj.studies.sweep import row as runner
 from ftstab_mj.studies.sweep.run import run_sweep
 from ftstab_mj.studies.sweep.row import ScenarioTask, prepare
 from ftstab_mj.studies.sweep.table import read_table

@@ -129,7 +129,7 @@ def run_chain(sc, loop: str, Z0: np.ndarray, chunk: int = 128, native="auto", pr
 
 
 def run_plant(task, loop: str, Z0: np.ndarray, engine="serial", workers=1, scheduler=None, progress=None) -> list[dict]:
-    """Per-trajectory rows from runs of the scenario (sweep.runner.ScenarioTask ``task``) with
+    """Per-trajectory rows from runs of the scenario (sweep.row.ScenarioTask ``task``) with
     ``loops.<loop>.z0`` set to each row of Z0, on a sweep engine; the metrics are those of ``ftstab run``."""
     from ftstab_mj.studies.sweep.engine import execute
 
