@@ -9,6 +9,8 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 
+import ftstab_mj
+
 from ftstab_mj.plants.disturbances import Signal
 from ftstab_mj.config.errors import LogError
 from ftstab_mj.logs import McapSink, RerunSink
@@ -64,6 +66,7 @@ def test_mcap_is_readable_by_the_plain_mcap_reader(tmp_path, run):
     for topic, msgs in _decoded(path).items():  # every message decodes (a failure raises)
         got[topic] = [(m, d) for _, m, d in msgs]
     assert meta["versions"]["mujoco"] == mujoco.__version__
+    assert meta["versions"]["log_format"] == str(ftstab_mj.LOG_FORMAT)  # readers branch on it
     assert summary.statistics.message_count == sum(len(v) for v in got.values())
     samples = got["/loop/cart"]
     arrays = loops["cart"]

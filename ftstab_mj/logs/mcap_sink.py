@@ -44,7 +44,7 @@ def versions() -> dict[str, str]:
 
     import ftstab_mj
 
-    return {"ftstab_mj": ftstab_mj.__version__, "mujoco": mujoco.__version__, "numpy": np.__version__,
+    return {"ftstab_mj": ftstab_mj.__version__, "log_format": str(ftstab_mj.LOG_FORMAT), "mujoco": mujoco.__version__, "numpy": np.__version__,
             "python": platform.python_version()}
 
 
