@@ -1002,7 +1002,6 @@ def test_R_is_affine_in_the_held_remainders_and_not_in_the_others(r):
     for obj, face, lo, hi in _held_boxes(r, 70 + r, boxes=24 if r < 6 else 8):
         with np.errstate(all="ignore"):
             F, phis, _ = obj.product(face, lo, hi)
-        n, d = len(lo), r - 1
         x = rng.uniform(lo, hi)
         base = {sl: rng.uniform(v.rng.lo, v.rng.hi) for sl, v in phis.items()}
         for sl, v in phis.items():

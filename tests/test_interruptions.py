@@ -10,7 +10,7 @@ import time
 import numpy as np
 import pytest
 
-from conftest import ROOT, run_cli, start_cli, wait_for_samples
+from conftest import run_cli, start_cli, wait_for_samples
 from ftstab_mj.cli import main
 from ftstab_mj.logs.reader import read_log
 

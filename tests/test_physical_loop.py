@@ -10,7 +10,6 @@ reduced chain, homogeneous with weights p_i = 1 + (i - 1) k, gives z_i = O(eps^(
 For r = 2, k = -0.2: z_1 ~ eps^0.625, z_2 ~ eps^0.5.
 """
 
-import math
 
 import numpy as np
 import pytest

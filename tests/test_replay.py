@@ -11,7 +11,7 @@ import pytest
 
 from conftest import ROOT, rrd_rows, run_cli
 from ftstab_mj.config.errors import LogError
-from ftstab_mj.logs import McapSink, RerunSink
+from ftstab_mj.logs import McapSink
 from ftstab_mj.logs.reader import read_log
 from ftstab_mj.metrics.run_metrics import compute_metrics
 from ftstab_mj.simulation.records import COMPLETED, INTERRUPTED, LOOP_FIELDS

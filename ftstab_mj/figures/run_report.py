@@ -33,7 +33,6 @@ import base64
 import errno
 import html
 import io
-import math
 import os
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field

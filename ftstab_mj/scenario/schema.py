@@ -28,7 +28,6 @@ import math
 from dataclasses import dataclass, field
 
 from ftstab_mj.control.law import Law, law_class
-from ftstab_mj.control.laws.paper import COMPUTED, bound
 from ftstab_mj.plants.disturbances import Signal
 from ftstab_mj.simulation.records import MetricSettings
 from ftstab_mj.config.validate import box_count, fraction, identifier, non_negative, one_line, one_of, positive, state_limit, time_step

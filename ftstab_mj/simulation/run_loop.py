@@ -287,7 +287,7 @@ class Simulation:
     def _step_batch(self, n_samples: int, warn0: int) -> None:
         """The Python path of :meth:`advance`: one mj_step per physics step, the per-step inputs
         written here, the law evaluated by :meth:`_control` at the first step of each period."""
-        m, d, N, n = self.model, self.data, self.N, self.plant.n
+        m, d, N = self.model, self.data, self.N
         force, ctrl_steps = self._force, self._ctrl
         ctrl, qfrc = d.ctrl, d.qfrc_applied
         integrating, refresh = self.plant.integrating, self.plant.refresh_before_sample
@@ -444,7 +444,7 @@ class Simulation:
     def _inject(self, m, d, row: int) -> None:
         """Write the held control (ctrl = gain u) and the disturbance force; record the true phi,
         gamma and the body poses of this sample."""
-        s, n = self._s, self.plant.n
+        s = self._s
         u, u_steps = (self._u_applied, self._u_steps) if self._staged else (self._u, self._u)
         self._ctrl[s:s + self.N] = self._gain[s:s + self.N] * u_steps  # held u times each step's gain
         d.ctrl[self._act] = self._ctrl[s]

@@ -27,7 +27,7 @@ u0 is NaN (no nominal part), gamma_hat = 1 (the laws assume a unit gain).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 
