@@ -199,6 +199,29 @@ def test_a_plugin_law_in_a_sweep_on_processes_and_in_a_comparison(user_folder):
     assert [(row["label"], row["status"]) for row in rows] == [("my pd", "completed"), ("nominal", "completed")]
 
 
+def test_a_plugin_law_in_a_sweep_on_dask_workers(user_folder):
+    """Dask workers are processes of their own (not forks of the command): they import the pinned
+    plugins when a row's scenario reaches them."""
+    from distributed import LocalCluster
+
+    (user_folder / "gains.toml").write_text(textwrap.dedent('''
+        name = "pd_gains"
+        description = "the plugin's PD law over two gains"
+        scenario = "pd.toml"
+        [set]
+        "sim.duration" = 1.0
+        [grid]
+        "loops.cart.controller.kp" = [16.0, 36.0]
+        '''))
+    with LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=None,
+                      host="127.0.0.1") as cluster:
+        sweep = ftstab("sweep", "gains.toml", "--scheduler", cluster.scheduler_address, "--format", "csv",
+                       "--out", "dk", cwd=user_folder)
+    assert sweep.returncode == 0, sweep.stderr
+    with open(user_folder / "dk" / "pd_gains.csv", newline="") as f:
+        assert [row["status"] for row in csv.DictReader(f)] == ["completed", "completed"]
+
+
 def test_an_installed_distribution_declares_a_law_by_entry_point(tmp_path):
     """An entry point of group ftstab_mj.laws, found by importlib.metadata as pip would install it."""
     site = tmp_path / "site"

@@ -37,6 +37,7 @@ from ftstab_mj.config.errors import ParameterError
 from ftstab_mj.config.validate import non_negative, one_of, open_unit_interval, positive  # noqa: F401 - the checks Params use
 
 REQUIRED = object()  # Param.default of a parameter the scenario must give
+COMPUTED = "computed"  # the value of a Param with plant_bound that stands for the plant's bound (scenario loader)
 
 
 class LawOutput(NamedTuple):

@@ -24,11 +24,12 @@ import numpy as np
 
 from ftstab_mj.config import keypath
 from ftstab_mj.control import LAWS, law_class
+from ftstab_mj.control.law import COMPUTED
 from ftstab_mj.plants.disturbances import KEYS_BY_KIND, MAX_VALUE, Signal
 from ftstab_mj.config.errors import ParameterError, ScenarioError, describe
 from ftstab_mj.simulation.records import MetricSettings
 from ftstab_mj.scenario.schema import (
-    COMPUTED, EXTERNAL_CHECKS, SIGNAL_DERIVED, ControllerSpec, LoopSpec, PlantSpec, Scenario, SensorSpec,
+    EXTERNAL_CHECKS, SIGNAL_DERIVED, ControllerSpec, LoopSpec, PlantSpec, Scenario, SensorSpec,
 )
 from ftstab_mj.scenario.plugins import load_entry_points, load_plugins
 from ftstab_mj.config.tomlfile import parse_text, read_toml

@@ -24,7 +24,7 @@ import stat
 import sys
 from pathlib import Path
 
-from ftstab_mj.config.errors import PluginError, describe
+from ftstab_mj.config.errors import PluginError, ScenarioError, describe
 
 GROUPS = ("ftstab_mj.laws", "ftstab_mj.plants")
 HASH_TAG = "#sha256="
@@ -135,6 +135,16 @@ def _failure(exc: BaseException, path: Path | None) -> str:
         tb = tb.tb_next
     text = str(exc).splitlines()[0] if str(exc) else ""
     return f"{type(exc).__name__}: {text}" + (f" (line {line})" if line and path is not None else "")
+
+
+def ensure(sc) -> None:
+    """Import the plugins and entry points a validated scenario ``sc`` was read with, where they are not
+    yet (a process that received the scenario itself, e.g. a Dask worker, never read its file).
+    Its entries are pinned (absolute path or module, and sha256): a changed file is refused."""
+    load_entry_points()
+    if sc.plugins:
+        load_plugins(list(sc.plugins), Path.cwd(),
+                     lambda key, expected, found: ScenarioError(f"scenario {sc.name}", key, expected, found))
 
 
 def load_entry_points() -> None:

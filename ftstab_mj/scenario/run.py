@@ -127,8 +127,10 @@ def run_scenario(sc: Scenario, sinks=(), keep_samples: bool = False, batch_size:
     Raises ftstab_mj.config.errors.CallbackError when the controller raised (sinks closed as "failed").
     """
     from ftstab_mj.plants import make_plant
+    from ftstab_mj.scenario.plugins import ensure
     from ftstab_mj.simulation.run_loop import Run, Simulation
 
+    ensure(sc)  # a scenario received whole (a Dask worker) brings its plugins' laws and plants here
     s = sc.sim
     sim = Simulation(make_plant(sc.plant.model, sc.plant.params), sc.loops, period=s.period,
                      physics_step=s.physics_step, integrator=s.integrator, divergence_limit=s.divergence_limit)

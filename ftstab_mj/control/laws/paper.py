@@ -24,11 +24,10 @@ import numpy as np
 
 from ftstab_mj.control import implicit
 from ftstab_mj.control.hong import HongController
-from ftstab_mj.control.law import (Law, LawOutput, Param, non_negative, one_of, open_unit_interval, positive,
+from ftstab_mj.control.law import (COMPUTED, Law, LawOutput, Param, non_negative, one_of, open_unit_interval, positive,
                                    register_law)
 from ftstab_mj.config.errors import ParameterError
 
-COMPUTED = "computed"  # a robust bound given as this word is the plant's bound (scenario loader)
 
 
 def bound(check):
