@@ -7,7 +7,8 @@ import pytest
 
 from ftstab_mj.control import HongController, certify, theorem3_bounds
 from ftstab_mj.plants.disturbances import Signal
-from ftstab_mj.metrics.run_metrics import bound_applies, compute_metrics, format_table, settle_time
+from ftstab_mj.metrics.run_metrics import bound_applies, compute_metrics, format_table
+from metrics_reference import settle_time
 from ftstab_mj.simulation.records import COMPLETED, DIVERGED, LOOP_FIELDS, LoopInfo, MetricSettings, RunInfo
 from synthetic_runs import ADAPTIVE, HONG2, synthetic_run
 

@@ -8,9 +8,8 @@ import pytest
 
 from ftstab_mj.logs import McapSink
 from ftstab_mj.logs.reader import read_log, stream_metrics
-from ftstab_mj.metrics.run_metrics import (MetricsStream, _BlockSum, _finite_or_nan, _num, _Ring, band_rms, chattering, compute_metrics,
-                               du_dt_variance, effort, eps_ball, estimation_error, final_abs_max, saturated_time, settle_time,
-                               theorem3_check, workspace_left, zero_crossing_rate)
+from ftstab_mj.metrics.run_metrics import (MetricsStream, _BlockSum, _finite_or_nan, _num, _Ring, band_rms, chattering, compute_metrics, du_dt_variance, saturated_time, theorem3_check, workspace_left, zero_crossing_rate)
+from metrics_reference import effort, eps_ball, estimation_error, final_abs_max, settle_time
 from ftstab_mj.simulation.records import LOOP_FIELDS
 from ftstab_mj.scenario import load_scenario, shipped_scenarios
 from ftstab_mj.scenario.run import run_scenario
