@@ -502,12 +502,12 @@ def test_a_failure_to_close_the_dask_engine_is_one_line_on_stderr_and_the_rest_i
 
 
 def test_the_readme_cluster_commands_set_exactly_the_local_clusters_quiet_configuration():
-    """The README's `export DASK_...` line for an external cluster's scheduler and workers, read by Dask as a
+    """The sweeps page's (docs/sweeps.md) `export DASK_...` line for an external cluster's scheduler and workers, read by Dask as a
     `dask worker` reads it (a fresh process, distributed's defaults loaded), gives engine.QUIET's values for
     its keys, and names no key more: a renamed key or a misspelt variable would be silently ignored by Dask."""
     import re
 
-    text = (ROOT / "README.md").read_text(encoding="utf-8")
+    text = (ROOT / "docs" / "sweeps.md").read_text(encoding="utf-8")
     block = text[text.index("### A sweep on a Dask cluster of several machines"):]
     block = block[:block.index("dask scheduler")]
     names = dict(re.findall(r"(DASK_[A-Z_]+)=(\S+)", block))
