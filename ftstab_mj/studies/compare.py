@@ -276,49 +276,9 @@ def format_rows(rows: list[dict], columns: list[str]) -> str:
 
 
 def draw_figures(cmp: Comparison, rows: list[dict], slopes: list[dict], series: dict, out: Path) -> list[Path]:
-    """The accuracy-vs-grid figure (when there is a grid) and the time plot; returns the PNG paths."""
-    import matplotlib
+    """The accuracy-vs-grid figure (when there is a grid) and the time plot; returns the PNG paths
+    (ftstab_mj.compare_figures: small multiples, slopes only through power laws, units)."""
+    from ftstab_mj.compare_figures import draw_figures as draw
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    paths = []
-    r = sum(1 for k in rows[0] if k.startswith("final_abs_z"))
-    if cmp.grid_path and len(cmp.grid) >= 2 and r:
-        fig, axes = plt.subplots(1, 2 if r > 1 else 1, figsize=(11, 4.5), squeeze=False)
-        by = {s["label"]: s for s in slopes}
-        for ax, i in zip(axes[0], (1, r) if r > 1 else (1,)):
-            for label in dict.fromkeys(row["label"] for row in rows):
-                pts = [(row[cmp.grid_path], row.get(f"final_abs_z{i}")) for row in rows
-                       if row["label"] == label and row["status"] == COMPLETED]
-                pts = [(x, y) for x, y in pts if y is not None and y > 0]
-                if pts:
-                    s = by[label].get(f"slope_z{i}")
-                    ax.loglog(*zip(*pts), "o-", label=f"{label} (slope {s:.2f})" if s is not None else label)
-            ax.set_xlabel(cmp.grid_path)
-            ax.set_ylabel(f"max |z_{i}| over the final window")
-            ax.grid(True, which="both", alpha=0.3)
-            ax.legend(fontsize=7)
-        fig.suptitle(f"{cmp.name}: final accuracy against {cmp.grid_path}")
-        fig.tight_layout()
-        paths.append(out / f"{cmp.name}_accuracy.png")
-        fig.savefig(paths[-1], dpi=110)
-        plt.close(fig)
-    if series:
-        fig, (au, az) = plt.subplots(2, 1, figsize=(11, 7), sharex=True)
-        for label, s in series.items():
-            au.plot(s["t"], s["u"], lw=0.6, label=label)
-            az.semilogy(s["t"], np.maximum(s["z1"], 1e-16), lw=0.8, label=label)
-        au.set_ylabel("u (chain units)")
-        az.set_ylabel("|z_1|")
-        az.set_xlabel("t (s)")
-        where = f" at {cmp.grid_path} = {cmp.grid[0]:g}" if cmp.grid_path else ""
-        au.set_title(f"{cmp.name}: control and |z_1| per law{where}")
-        au.legend(fontsize=7, ncol=2)
-        for ax in (au, az):
-            ax.grid(True, alpha=0.3)
-        fig.tight_layout()
-        paths.append(out / f"{cmp.name}_time.png")
-        fig.savefig(paths[-1], dpi=110)
-        plt.close(fig)
-    return paths
+    where = f" at {cmp.grid_path} = {cmp.grid[0]:g}" if cmp.grid_path else ""
+    return draw(cmp.name, rows, cmp.grid_path, cmp.grid, series, out, where)
