@@ -114,3 +114,16 @@ def test_integral_hosm_follows_its_nominal_trajectory_on_the_cart():
     assert np.max(np.abs(a["z"][:n, 0] - nominal)) <= 10 * H
     assert abs(a["z"][n - 1, 0]) <= 10 * H
     assert np.all(np.isfinite(a["u0"]))
+
+
+def test_the_full_length_benchmark_script_runs_shortened(tmp_path):
+    """benchmarks/field_r2.py (the 10 s comparison and its convergence check) runs through the real CLI;
+    at 0.3 s nothing has converged, so only the report is checked (--no-check)."""
+    import subprocess
+    import sys
+
+    out = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "field_r2.py"), "--duration", "0.3", "--workers", "2",
+                          "--out", str(tmp_path), "--no-check"], capture_output=True, text=True, timeout=600, cwd=ROOT)
+    assert out.returncode == 0, out.stderr[-2000:]
+    for law in FIELD:
+        assert f"\n{law} " in out.stdout, out.stdout
