@@ -57,24 +57,32 @@ def accuracy_fits(rows: list[dict], grid_path: str, i: int) -> dict:
 def accuracy_figure(name: str, rows: list[dict], grid_path: str):
     """The accuracy figure (matplotlib Figure): panels max |z_1| and, when r > 1, max |z_r|."""
     import matplotlib.pyplot as plt
+    import matplotlib.ticker  # noqa: F401 - matplotlib.ticker below
 
     r = sum(1 for k in rows[0] if k.startswith("final_abs_z"))
     idx = (1, r) if r > 1 else (1,)
-    fig, axes = plt.subplots(1, len(idx), figsize=(6.0 * len(idx), 4.5), squeeze=False)
+    labels = _order(rows)
+    legend_h = 0.5 + 0.14 * len(labels)  # inches below the axes for one legend line per law
+    height = 3.6 + legend_h
+    fig, axes = plt.subplots(1, len(idx), figsize=(6.0 * len(idx), height), squeeze=False)
+    fig.subplots_adjust(left=0.08, right=0.98, top=1.0 - 0.7 / height, bottom=(legend_h + 0.55) / height, wspace=0.3)
+    colors = plt.get_cmap("tab20" if len(labels) > 10 else "tab10")
     for ax, i in zip(axes[0], idx):
-        for label, (pts, fit) in accuracy_fits(rows, grid_path, i).items():
+        for j, (label, (pts, fit)) in enumerate(accuracy_fits(rows, grid_path, i).items()):
             if not pts:
                 continue
             text = f"{label}: slope {fit.slope:.2f}" if fit.power_law else f"{label}: no slope ({fit.why_not})"
-            ax.loglog(*zip(*pts), "o-", ms=3, lw=1, label=text)
+            ax.loglog(*zip(*pts), "os^vD"[j % 5] + "-", ms=3.5, lw=1, color=colors(j % colors.N), label=text)
         ax.set_xlabel(grid_label(grid_path))
-        ax.set_ylabel(f"max |z_{i}| over the final window ({z_unit(i)})")
+        ax.set_ylabel(f"max |z_{i}|, final window ({z_unit(i)})")
+        xs = sorted({row[grid_path] for row in rows if row.get(grid_path) is not None})
+        ax.set_xticks(xs, [f"{x:g}" for x in xs], fontsize=7)  # the grid's own values: no colliding labels
+        ax.xaxis.set_minor_locator(matplotlib.ticker.NullLocator())
         ax.set_title(f"z_{i}")
         ax.grid(True, which="both", alpha=0.3)
-    for ax in axes[0]:  # below the axes: the legend never covers data
-        ax.legend(fontsize=6, loc="upper left", bbox_to_anchor=(0.0, -0.16), frameon=False)
+        # below the axes, under the x label: the legend never covers data
+        ax.legend(fontsize=6, loc="upper left", bbox_to_anchor=(0.0, -0.55 / 3.6 - 0.12), frameon=False)
     fig.suptitle(f"{name}: final accuracy against {grid_path} (slope only where r^2 >= 0.99 on log-log)")
-    fig.tight_layout()
     return fig
 
 
