@@ -1,7 +1,8 @@
 """Adaptive sliding mode with a gain that never decreases, registered as "huang_adaptive".
 
 Huang, Kuo and Chang, "Adaptive sliding-mode control for nonlinear systems with uncertain parameters",
-IEEE Trans. Systems, Man, and Cybernetics B 38(2):534-539, 2008. On the surface
+IEEE Trans. Systems, Man, and Cybernetics B 38(2):534-539, 2008 (their adaptive switching gain; equation
+numbers not quoted here). On the surface
 s = z_r + sum_{i<r} c_i z_i (the known drift a(z) = sum c_i z_{i+1} cancelled, as for the other
 surface laws):
 

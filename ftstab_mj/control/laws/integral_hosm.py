@@ -15,7 +15,7 @@ mode", Automatica 43(3):531-537, 2007. The r-sliding problem z_r' = phi + gamma 
   u = u_nom - switching sign(s). Then s' = phi + (gamma - 1) u_nom - gamma switching sign s: with
   gamma switching > |phi + (gamma - 1) u_nom| the sliding mode s = 0 holds from t = 0 (no reaching
   phase), z_r' = u_nom exactly, and the chain arrives at the origin at t_F whatever the matched
-  disturbance (the paper's Theorem).
+  disturbance (the paper's main result; equation numbers not quoted here).
 
 The minimum-energy gains grow without bound as T -> 0; the time to go is floored at ``t_hold``
 (T = max(t_F - t, t_hold)), after which u_nom is the fixed linear feedback with poles

@@ -1,7 +1,8 @@
 """Nonsingular terminal sliding mode (r = 2), registered as "terminal".
 
 Feng, Yu and Man, "Non-singular terminal sliding mode control of rigid manipulators", Automatica
-38(12):2159-2167, 2002 (section 3: the surface, the control and the two times below). For
+38(12):2159-2167, 2002 (the surface, the control and the sliding time below; their equation numbers
+are not quoted here). For
 x_1' = x_2, x_2' = f + b u they take the surface and the control
 
     s = x_1 + (1 / beta) x_2^(p/q),          p, q odd, 1 < p/q < 2

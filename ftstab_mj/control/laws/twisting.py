@@ -2,8 +2,9 @@
 
 u = -r1 sign(z_1) - r2 sign(z_2),  r1 > r2 > 0
 (Levantovsky 1985; Levant 1993, "Sliding order and sliding accuracy in sliding mode control",
-Int. J. Control 58(6):1247, section 4, the twisting algorithm; Shtessel, Edwards, Fridman, Levant,
-"Sliding Mode Control and Observation", Birkhauser 2014, section 4.2.1).
+Int. J. Control 58(6):1247-1263, the twisting algorithm and its convergence conditions; also
+Shtessel, Edwards, Fridman, Levant, "Sliding Mode Control and Observation", Birkhauser 2014, ch. 4).
+Equation and section numbers are not quoted here: check them against the papers.
 
 Gain condition. On z_1'' = phi + gamma u with |phi| <= C and 0 < Km <= gamma <= KM, the origin is
 reached in finite time when
@@ -23,7 +24,7 @@ K sqrt(x), K = sqrt(2 / c) + sqrt(2 b) / a, and multiplies |z_1| on the z_1 axis
     T(x) <= K sqrt(x) / (1 - sqrt(q))       (:meth:`Twisting.time_bound`, from z(0) = (x, 0)).
 
 Sampling: the closed loop is homogeneous of degree -1 with weights (2, 1), so with u held over a
-period h, |z_1| = O(h^2) and |z_2| = O(h) (Levant 1993, Theorem 3; Levant 2003 Theorem 5).
+period h, |z_1| = O(h^2) and |z_2| = O(h) (Levant 1993; Levant 2003, IJC 76:924, Theorem 5).
 
 No Lyapunov function is logged (V1, dV1_dzr, u0, gamma_hat, phi_hat are NaN); no state.
 """
