@@ -11,7 +11,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 
-from ftstab_mj.compare_figures import accuracy_figure, draw_figures, grid_label, time_figure  # noqa: E402
+from ftstab_mj.figures.compare_report import accuracy_figure, draw_figures, grid_label, time_figure  # noqa: E402
 
 PERIODS = [5e-4, 1e-3, 2e-3, 4e-3]
 

@@ -14,8 +14,8 @@ from ftstab_mj.control.laws.integral_hosm import IntegralHOSM, min_energy_gains
 from ftstab_mj.control.laws.sliding_surface import PlestanAdaptive
 from ftstab_mj.control.laws.terminal import Terminal
 from ftstab_mj.control.laws.twisting import Twisting
-from ftstab_mj.errors import ParameterError
-from ftstab_mj.ideal_chain import chain_transition
+from ftstab_mj.config.errors import ParameterError
+from ftstab_mj.simulation.ideal_chain import chain_transition
 
 
 def zoh_run(law, z0, h, duration, phi, gamma=1.0, stop=None):

@@ -14,10 +14,10 @@ from ftstab_mj.control.laws.fixed_time import FixedTime
 from ftstab_mj.control.laws.integral_hosm import IntegralHOSM
 from ftstab_mj.control.laws.terminal import Terminal
 from ftstab_mj.control.laws.twisting import Twisting
-from ftstab_mj.ideal_chain import chain_transition
+from ftstab_mj.simulation.ideal_chain import chain_transition
 from ftstab_mj.scenario import scenario_from_dict
 from ftstab_mj.scenario.run import run_scenario
-from ftstab_mj.tomlfile import read_toml
+from ftstab_mj.config.tomlfile import read_toml
 
 FIELD = ("twisting", "terminal", "fixed_time", "adaptive_super_twisting", "integral_hosm", "huang_adaptive")
 H = 5e-4

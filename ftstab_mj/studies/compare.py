@@ -30,8 +30,9 @@ give one table, laws as rows, written as CSV and Parquet, with the metrics of ``
 the final window (chain units), effort integral of u^2 (u^2 s), max |u|, the four chattering indices
 and, where a time bound applies, whether it was beaten. With a ``sim.period`` grid the log-log slope
 of each max |z_i| against the period is fitted per law (least squares on log10) and drawn.
-Figures: ``<name>_accuracy.png`` (max |z_1| and max |z_r| against the grid value, log-log, slopes in
-the legend) and ``<name>_time.png`` (u and |z_1| against time for each law, at the first grid value).
+Figures (ftstab_mj.figures.compare_report, drawn by the command line): ``<name>_accuracy.png`` (max
+|z_1| and max |z_r| against the grid value, log-log, a slope only through a power law) and
+``<name>_time.png`` (u and |z_1| against time, one row per law, at the first grid value).
 Bad input: one line (SweepError: file, key path, expected, found) before any run.
 """
 
@@ -273,12 +274,3 @@ def format_rows(rows: list[dict], columns: list[str]) -> str:
     width = [max(len(c), *(len(r[j]) for r in cells)) for j, c in enumerate(columns)]
     line = lambda vals: "  ".join(v.ljust(w) if j == 0 else v.rjust(w) for j, (v, w) in enumerate(zip(vals, width)))
     return "\n".join([line(columns)] + [line(r) for r in cells])
-
-
-def draw_figures(cmp: Comparison, rows: list[dict], slopes: list[dict], series: dict, out: Path) -> list[Path]:
-    """The accuracy-vs-grid figure (when there is a grid) and the time plot; returns the PNG paths
-    (ftstab_mj.compare_figures: small multiples, slopes only through power laws, units)."""
-    from ftstab_mj.compare_figures import draw_figures as draw
-
-    where = f" at {cmp.grid_path} = {cmp.grid[0]:g}" if cmp.grid_path else ""
-    return draw(cmp.name, rows, cmp.grid_path, cmp.grid, series, out, where)

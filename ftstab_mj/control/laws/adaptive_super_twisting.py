@@ -35,7 +35,7 @@ from ftstab_mj.control.hong import sig
 from ftstab_mj.control.law import Law, LawOutput, Param, positive, register_law
 from ftstab_mj.control.laws.sliding_surface import SURFACE, surface_coefficients
 from ftstab_mj.control.laws.terminal import positive_number
-from ftstab_mj.errors import ParameterError
+from ftstab_mj.config.errors import ParameterError
 
 
 def sliding_variable(surface, z):

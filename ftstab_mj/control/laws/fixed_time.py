@@ -42,7 +42,7 @@ import numpy as np
 
 from ftstab_mj.control.law import Law, LawOutput, Param, positive, register_law
 from ftstab_mj.control.laws.terminal import SWITCHING, chain_state, positive_number
-from ftstab_mj.errors import ParameterError
+from ftstab_mj.config.errors import ParameterError
 
 
 @register_law

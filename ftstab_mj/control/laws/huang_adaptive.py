@@ -29,7 +29,7 @@ from ftstab_mj.control.law import Law, LawOutput, Param, non_negative, register_
 from ftstab_mj.control.laws.adaptive_super_twisting import sliding_variable
 from ftstab_mj.control.laws.sliding_surface import SURFACE, PlestanAdaptive, surface_coefficients
 from ftstab_mj.control.laws.terminal import positive_number
-from ftstab_mj.errors import ParameterError
+from ftstab_mj.config.errors import ParameterError
 
 KBAR = next(p for p in PlestanAdaptive.params if p.name == "Kbar")  # one key, one meaning
 

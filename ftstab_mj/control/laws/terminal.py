@@ -34,7 +34,7 @@ import numpy as np
 
 from ftstab_mj.control.hong import sig
 from ftstab_mj.control.law import Law, LawOutput, Param, positive, register_law
-from ftstab_mj.errors import ParameterError
+from ftstab_mj.config.errors import ParameterError
 
 # Shared by the laws with a discontinuous term -switching sign(s) (terminal, fixed_time, integral_hosm).
 SWITCHING = Param("switching", float, "gain of the discontinuous term -switching sign(s); must exceed the "

@@ -36,7 +36,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ftstab_mj.control.law import Law, LawOutput, Param, positive, register_law
-from ftstab_mj.errors import ParameterError
+from ftstab_mj.config.errors import ParameterError
 
 
 def _number(name, value):

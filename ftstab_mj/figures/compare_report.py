@@ -7,7 +7,7 @@ slope only where the points are a power law.
 * :func:`accuracy_figure`: max |z_1| and max |z_r| over the final window against the grid value,
   log-log, one line per law; a law's legend entry (below the axes) states its slope only when the fit is a power law
   (at least 3 grid values and r^2 >= 0.99 on log-log, the rule of ``sweep --report``:
-  ftstab_mj.sweep.report.fit_series) and otherwise says why not (r^2, or too few points).
+  ftstab_mj.figures.sweep_report.fit_series) and otherwise says why not (r^2, or too few points).
 
 Every axis label carries its unit. Shapes: ``series[label]`` holds arrays t, u, z1 of one length.
 """
@@ -18,8 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ftstab_mj.records import COMPLETED
-from ftstab_mj.sweep.report import fit_series
+from ftstab_mj.figures.sweep_report import fit_series
+from ftstab_mj.simulation.records import COMPLETED
 
 GRID_UNITS = {"sim.period": "control period, s", "sim.physics_step": "s", "sim.duration": "s"}
 
