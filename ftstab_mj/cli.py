@@ -750,7 +750,10 @@ def cmd_compare(args) -> int:
         print(f"log-log slopes of max |z_i| against {cmp.grid_path} ({len(cmp.grid)} values):")
         print(compare.format_rows(slopes, list(slopes[0])))
         paths.append(compare.write_csv(slopes, out / f"{cmp.name}_slopes.csv"))
-    paths += compare.draw_figures(cmp, rows, slopes, series, out)
+    from ftstab_mj.figures.compare_report import draw_figures
+
+    where = f" at {cmp.grid_path} = {cmp.grid[0]:g}" if cmp.grid_path else ""
+    paths += draw_figures(cmp.name, rows, cmp.grid_path, cmp.grid, series, out, where)
     for path in paths:
         print(f"wrote {path}")
     return 0

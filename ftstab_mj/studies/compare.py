@@ -30,8 +30,9 @@ give one table, laws as rows, written as CSV and Parquet, with the metrics of ``
 the final window (chain units), effort integral of u^2 (u^2 s), max |u|, the four chattering indices
 and, where a time bound applies, whether it was beaten. With a ``sim.period`` grid the log-log slope
 of each max |z_i| against the period is fitted per law (least squares on log10) and drawn.
-Figures: ``<name>_accuracy.png`` (max |z_1| and max |z_r| against the grid value, log-log, slopes in
-the legend) and ``<name>_time.png`` (u and |z_1| against time for each law, at the first grid value).
+Figures (ftstab_mj.figures.compare_report, drawn by the command line): ``<name>_accuracy.png`` (max
+|z_1| and max |z_r| against the grid value, log-log, a slope only through a power law) and
+``<name>_time.png`` (u and |z_1| against time, one row per law, at the first grid value).
 Bad input: one line (SweepError: file, key path, expected, found) before any run.
 """
 
@@ -273,52 +274,3 @@ def format_rows(rows: list[dict], columns: list[str]) -> str:
     width = [max(len(c), *(len(r[j]) for r in cells)) for j, c in enumerate(columns)]
     line = lambda vals: "  ".join(v.ljust(w) if j == 0 else v.rjust(w) for j, (v, w) in enumerate(zip(vals, width)))
     return "\n".join([line(columns)] + [line(r) for r in cells])
-
-
-def draw_figures(cmp: Comparison, rows: list[dict], slopes: list[dict], series: dict, out: Path) -> list[Path]:
-    """The accuracy-vs-grid figure (when there is a grid) and the time plot; returns the PNG paths."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    paths = []
-    r = sum(1 for k in rows[0] if k.startswith("final_abs_z"))
-    if cmp.grid_path and len(cmp.grid) >= 2 and r:
-        fig, axes = plt.subplots(1, 2 if r > 1 else 1, figsize=(11, 4.5), squeeze=False)
-        by = {s["label"]: s for s in slopes}
-        for ax, i in zip(axes[0], (1, r) if r > 1 else (1,)):
-            for label in dict.fromkeys(row["label"] for row in rows):
-                pts = [(row[cmp.grid_path], row.get(f"final_abs_z{i}")) for row in rows
-                       if row["label"] == label and row["status"] == COMPLETED]
-                pts = [(x, y) for x, y in pts if y is not None and y > 0]
-                if pts:
-                    s = by[label].get(f"slope_z{i}")
-                    ax.loglog(*zip(*pts), "o-", label=f"{label} (slope {s:.2f})" if s is not None else label)
-            ax.set_xlabel(cmp.grid_path)
-            ax.set_ylabel(f"max |z_{i}| over the final window")
-            ax.grid(True, which="both", alpha=0.3)
-            ax.legend(fontsize=7)
-        fig.suptitle(f"{cmp.name}: final accuracy against {cmp.grid_path}")
-        fig.tight_layout()
-        paths.append(out / f"{cmp.name}_accuracy.png")
-        fig.savefig(paths[-1], dpi=110)
-        plt.close(fig)
-    if series:
-        fig, (au, az) = plt.subplots(2, 1, figsize=(11, 7), sharex=True)
-        for label, s in series.items():
-            au.plot(s["t"], s["u"], lw=0.6, label=label)
-            az.semilogy(s["t"], np.maximum(s["z1"], 1e-16), lw=0.8, label=label)
-        au.set_ylabel("u (chain units)")
-        az.set_ylabel("|z_1|")
-        az.set_xlabel("t (s)")
-        where = f" at {cmp.grid_path} = {cmp.grid[0]:g}" if cmp.grid_path else ""
-        au.set_title(f"{cmp.name}: control and |z_1| per law{where}")
-        au.legend(fontsize=7, ncol=2)
-        for ax in (au, az):
-            ax.grid(True, alpha=0.3)
-        fig.tight_layout()
-        paths.append(out / f"{cmp.name}_time.png")
-        fig.savefig(paths[-1], dpi=110)
-        plt.close(fig)
-    return paths
