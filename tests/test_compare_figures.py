@@ -9,7 +9,6 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
-import pytest  # noqa: E402
 
 from ftstab_mj.figures.compare_report import accuracy_figure, draw_figures, grid_label, time_figure  # noqa: E402
 
