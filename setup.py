@@ -1,4 +1,4 @@
-"""Build of the optional native kernel (ftstab_mj/native/kernel.c); all metadata is in pyproject.toml.
+"""Build of the optional native kernel (ftstab_mj/simulation/native/kernel.c); all metadata is in pyproject.toml.
 
 The extension is optional: when no C compiler works, setuptools warns and the install goes on
 without it, and ftstab_mj runs the pure NumPy controller (and says so once).
@@ -29,7 +29,7 @@ class BuildExt(build_ext):
 
 class BuildPyWithData(build_py):
     """Copies models/ and scenarios/ into the built package (ftstab_mj/_data/), so that a wheel
-    (plain `pip install .`) carries them; ftstab_mj.resources finds either copy."""
+    (plain `pip install .`) carries them; ftstab_mj.config.resources finds either copy."""
 
     def run(self):
         super().run()
@@ -40,6 +40,6 @@ class BuildPyWithData(build_py):
 
 
 setup(
-    ext_modules=[Extension("ftstab_mj.native._kernel", ["ftstab_mj/native/kernel.c"], optional=True)],
+    ext_modules=[Extension("ftstab_mj.simulation.native._kernel", ["ftstab_mj/simulation/native/kernel.c"], optional=True)],
     cmdclass={"build_ext": BuildExt, "build_py": BuildPyWithData},
 )

@@ -25,14 +25,14 @@ import time
 from pathlib import Path
 
 import mujoco
-import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from ftstab_mj.control import HongController, RobustLaw  # noqa: E402
 from ftstab_mj.plants import make_plant  # noqa: E402
-from ftstab_mj.sim import LoopSpec, Simulation  # noqa: E402
+from ftstab_mj.scenario import LoopSpec  # noqa: E402
+from ftstab_mj.simulation.run_loop import Simulation  # noqa: E402
 
 STEP = 1e-3
 BATCH = 1000

@@ -12,10 +12,12 @@ both stay in an O(period) band but need not agree sample by sample).
 import numpy as np
 
 from ftstab_mj.control import HongController, RobustLaw
-from ftstab_mj.disturbances import Signal
-from ftstab_mj.ideal_chain import simulate_chain
+from ftstab_mj.plants.disturbances import Signal
+from ftstab_mj.simulation.ideal_chain import simulate_chain
 from ftstab_mj.plants import make_plant
-from ftstab_mj.sim import LoopSpec, simulate
+from ftstab_mj.scenario import LoopSpec
+
+from ftstab_mj.simulation.run_loop import simulate
 
 HONG = {2: HongController(2, -0.2, (1.0, 2.0)), 3: HongController(3, -0.1, (1.0, 1.7, 5.0))}
 MODEL = {2: "cart", 3: "cart_integrating"}

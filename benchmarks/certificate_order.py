@@ -8,7 +8,7 @@ one-box cap: the seeded sample, climb and polish; deterministic), moved onto its
 the dilation. Boxes of half-width h in every face coordinate, centred on the witness (a local
 maximum of R = dV1/dt / V1^alpha), and on the witness with one coordinate s_j set to 0 (the box
 then contains the zero of s_j, where the powers of s_j with an exponent < 1 become variables of
-their own: certificate._Ratio.boxes).
+their own: certificate.Ratio.boxes).
 
 excess(h) = (the box's upper bound) - (the largest guaranteed lower bound of R at its centre, its
 2^(r-1) corners and 4096 uniform points; tests/test_control_certificate.bound_excess): at least the
@@ -33,7 +33,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 from test_control_certificate import bound_excess, face_coordinates  # noqa: E402
 
 from ftstab_mj.control import HongController, certify  # noqa: E402
-from ftstab_mj.control.certificate import _Ratio  # noqa: E402
+from ftstab_mj.control.certificate import Ratio  # noqa: E402
 from ftstab_mj.control.hong_terms import Terms  # noqa: E402
 
 ROWS = [  # (r, k, gains, origin)
@@ -54,7 +54,7 @@ def main(argv=None):
     for r, k, gains, origin in rows:
         hong = HongController(r, k, gains)
         terms = Terms(r, k, gains)
-        obj = _Ratio(terms, "c")
+        obj = Ratio(terms, "c")
         cert = certify(hong, max_boxes=1)
         f, x = face_coordinates(r, k, terms.s_of(np.array([cert.witness]))[0])
         print(f"r = {r}, k = {k}, gains {', '.join(f'{g:g}' for g in gains)} ({origin}): witness R = "

@@ -18,7 +18,7 @@ alternating A (DIR) and B (this tree), --repeat times: median CPU seconds with t
 ratio A/B of the medians, and each side's status, c_lower and boxes (deterministic without a budget).
 --select: the row numbers (0-based, as listed in ROWS) to compare.
 
---rounding: only the cost of one outward rounding (interval._up) against np.nextafter on 1e6
+--rounding: only the cost of one outward rounding (interval.round_up) against np.nextafter on 1e6
 floats, alternating the two, 15 rounds: median and range of the per-element times and their ratio.
 """
 
@@ -78,19 +78,19 @@ ROWS = [  # (r, k, gains, origin)
 
 
 def rounding():
-    from ftstab_mj.control.interval import _up
+    from ftstab_mj.control.interval import round_up
 
     x = np.random.default_rng(0).standard_normal(1_000_000)
     t_up, t_na = [], []
     for _ in range(15):
-        for f, out in ((lambda: _up(x), t_up), (lambda: np.nextafter(x, np.inf), t_na)):
+        for f, out in ((lambda: round_up(x), t_up), (lambda: np.nextafter(x, np.inf), t_na)):
             t = time.perf_counter()
             f()
             out.append((time.perf_counter() - t) / x.size * 1e9)
     ratio = np.array(t_na) / np.array(t_up)
-    print(f"outward rounding per element: _up {np.median(t_up):.2f} ns [{min(t_up):.2f}, {max(t_up):.2f}], "
+    print(f"outward rounding per element: round_up {np.median(t_up):.2f} ns [{min(t_up):.2f}, {max(t_up):.2f}], "
           f"np.nextafter {np.median(t_na):.2f} ns [{min(t_na):.2f}, {max(t_na):.2f}]; "
-          f"nextafter / _up = {np.median(ratio):.1f} [{ratio.min():.1f}, {ratio.max():.1f}]")
+          f"nextafter / round_up = {np.median(ratio):.1f} [{ratio.min():.1f}, {ratio.max():.1f}]")
 
 
 _ONE = """

@@ -1,5 +1,5 @@
 """The size of the proof's tree, level by level: the phase of the certificate's branch and bound that
-proves c > 0, run breadth first. Every box of the r faces whose bound (certificate._Ratio.boxes, the
+proves c > 0, run breadth first. Every box of the r faces whose bound (certificate.Ratio.boxes, the
 parent's bound kept when smaller) is >= 0 is split in two along the coordinate the split rule
 chooses; printed per depth: the boxes evaluated, those still open, and the CPU seconds so far. The
 witness search, the retiring and the memory caps of certificate._maximise are left out, so two
@@ -20,7 +20,7 @@ import time
 
 import numpy as np
 
-from ftstab_mj.control.certificate import _Ratio
+from ftstab_mj.control.certificate import Ratio
 from ftstab_mj.control.hong_terms import Terms
 
 CHUNK = 65536  # boxes evaluated at once (memory)
@@ -36,7 +36,7 @@ def main(argv=None):
     ap.add_argument("--where", action="store_true", help="where the open boxes of the last depth are")
     args = ap.parse_args(argv)
     r, d = args.r, args.r - 1
-    obj = _Ratio(Terms(r, args.k, tuple(float(g) for g in args.gains.split(","))), "c")
+    obj = Ratio(Terms(r, args.k, tuple(float(g) for g in args.gains.split(","))), "c")
     lo, hi, face = np.full((r, d), -1.0), np.full((r, d), 1.0), np.arange(r)
     parent = np.full(r, np.inf)
     t0, total = time.process_time(), 0

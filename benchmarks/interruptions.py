@@ -50,7 +50,7 @@ def main() -> int:
     import numpy as np
 
     from ftstab_mj.logs.reader import read_log
-    from ftstab_mj.metrics import compute_metrics
+    from ftstab_mj.metrics.run_metrics import compute_metrics
 
     env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
     entries = {"module": [sys.executable, "-m", "ftstab_mj"], "script": [str(Path(sys.executable).parent / "ftstab")]}

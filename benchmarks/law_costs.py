@@ -25,14 +25,14 @@ import mujoco
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from ftstab_mj import native  # noqa: E402
-from ftstab_mj.callback import timer_off  # noqa: E402
-from ftstab_mj.compare import load_comparison  # noqa: E402
+from ftstab_mj.simulation import native  # noqa: E402
+from ftstab_mj.plants.callback import timer_off  # noqa: E402
+from ftstab_mj.studies.compare import load_comparison  # noqa: E402
 from ftstab_mj.plants import make_plant  # noqa: E402
 from ftstab_mj.scenario import LoopSpec  # noqa: E402
 from ftstab_mj.scenario.schema import ControllerSpec  # noqa: E402
-from ftstab_mj.disturbances import Signal  # noqa: E402
-from ftstab_mj.sim import Simulation  # noqa: E402
+from ftstab_mj.plants.disturbances import Signal  # noqa: E402
+from ftstab_mj.simulation.run_loop import Simulation  # noqa: E402
 
 STEP = 1e-3
 BATCH = 1000
@@ -45,7 +45,7 @@ def cpu(fn) -> float:
 
 
 def law_run(plant, controller: dict, r: int, steps: int, use_native) -> float:
-    spec = ControllerSpec(**controller)
+    spec = ControllerSpec.of(**controller)
     loop = LoopSpec("cart", z0=(1.0,) + (0.0,) * (r - 1), controller=spec,
                     disturbance=Signal("sine", 0.0, 0.8, freq=0.5), gain=Signal("sine", 1.0, 0.4, freq=0.3, phase=1.0))
     sim = Simulation(plant, [loop], STEP, STEP, native=use_native)
@@ -77,7 +77,7 @@ def main(argv=None) -> int:
     print(f"{'law':<32} {'path':<7} {'x bare (median, min-max)':>26} {'extra us/sample':>16}")
     for entry in cmp.laws:
         paths = [False]
-        spec_law = ControllerSpec(**entry.controller).build(args.r)
+        spec_law = ControllerSpec.of(**entry.controller).build(args.r)
         if native.use_native("auto", spec_law):
             paths.insert(0, True)
         for use_native in paths:

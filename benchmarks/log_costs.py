@@ -18,8 +18,8 @@ import numpy as np
 
 from ftstab_mj.logs import McapSink, RerunSink
 from ftstab_mj.logs.reader import read_log
-from ftstab_mj.metrics import compute_metrics
-from ftstab_mj.records import COMPLETED, SampleBatch
+from ftstab_mj.metrics.run_metrics import compute_metrics
+from ftstab_mj.simulation.records import COMPLETED, SampleBatch
 from ftstab_mj.scenario import find_scenario, load_scenario
 from ftstab_mj.scenario.run import run_scenario
 

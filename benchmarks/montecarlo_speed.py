@@ -19,8 +19,8 @@ import time
 
 import numpy as np
 
-from ftstab_mj import montecarlo as mc
-from ftstab_mj.ideal_chain import simulate_chain
+from ftstab_mj.studies import montecarlo as mc
+from ftstab_mj.simulation.ideal_chain import simulate_chain
 from ftstab_mj.scenario import find_scenario, load_scenario
 
 

@@ -29,10 +29,10 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from benchmarks.speed import BATCH, STEP, Clock, bare, loops, summary  # noqa: E402
-from ftstab_mj import native  # noqa: E402
+from ftstab_mj.simulation import native  # noqa: E402
 from ftstab_mj.plants import make_plant  # noqa: E402
 from ftstab_mj.scenario.schema import ActuatorSpec, ObserverSpec, SensorSpec  # noqa: E402
-from ftstab_mj.sim import Simulation  # noqa: E402
+from ftstab_mj.simulation.run_loop import Simulation  # noqa: E402
 
 STAGES = dict(sensor=SensorSpec(measured="position", noise=1e-4, delay=1, seed=1),
               observer=ObserverSpec(kind="levant", L=20.0),
@@ -86,7 +86,7 @@ def figures() -> None:
     sys.path.insert(0, str(ROOT / "tests"))
     from test_loop_stages import L, differentiate, slopes
 
-    from ftstab_mj.loop_stages import LevantDifferentiator
+    from ftstab_mj.simulation.stages import LevantDifferentiator
     from ftstab_mj.scenario import SCENARIO_DIR, load_scenario
     from ftstab_mj.scenario.run import run_scenario
 

@@ -13,7 +13,7 @@ import argparse
 
 import numpy as np
 
-from ftstab_mj.control.design import nelder_mead
+from ftstab_mj.control.nelder_mead import nelder_mead
 from ftstab_mj.control.linear_limit import linear_c
 
 

@@ -41,16 +41,16 @@ sys.path.insert(0, str(ROOT))
 
 import mujoco  # noqa: E402
 
-from ftstab_mj.callback import timer_off  # noqa: E402
+from ftstab_mj.plants.callback import timer_off  # noqa: E402
 from ftstab_mj.logs import McapSink, RerunSink  # noqa: E402
 from ftstab_mj.plants import make_plant  # noqa: E402
 from ftstab_mj.scenario import find_scenario, load_scenario  # noqa: E402
 from ftstab_mj.scenario.loader import scenario_to_dict  # noqa: E402
 from ftstab_mj.scenario.run import record, run_scenario  # noqa: E402
-from ftstab_mj.sim import Run, Simulation  # noqa: E402
+from ftstab_mj.simulation.run_loop import Run, Simulation  # noqa: E402
 
 # what `ftstab run` imports on its way (cli.cmd_run, the run loop, the sinks, the metrics)
-RUN_IMPORTS = ("ftstab_mj.cli", "ftstab_mj.scenario.run", "ftstab_mj.sim", "ftstab_mj.logs", "ftstab_mj.metrics",
+RUN_IMPORTS = ("ftstab_mj.cli", "ftstab_mj.scenario.run", "ftstab_mj.simulation.run_loop", "ftstab_mj.logs", "ftstab_mj.metrics.run_metrics",
                "ftstab_mj.logs.mcap_sink", "ftstab_mj.logs.rerun_sink", "foxglove.messages",
                "google.protobuf.descriptor_pb2", "mcap.records", "lz4.frame", "rerun")
 

@@ -40,12 +40,13 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from ftstab_mj import native  # noqa: E402
+from ftstab_mj.simulation import native  # noqa: E402
 from ftstab_mj.control import AdaptiveLaw, HongController, RobustLaw  # noqa: E402
-from ftstab_mj.disturbances import Signal  # noqa: E402
-from ftstab_mj.ideal_chain import simulate_chain  # noqa: E402
+from ftstab_mj.plants.disturbances import Signal  # noqa: E402
+from ftstab_mj.simulation.ideal_chain import simulate_chain  # noqa: E402
 from ftstab_mj.plants import make_plant  # noqa: E402
-from ftstab_mj.sim import LoopSpec, Run, Simulation  # noqa: E402
+from ftstab_mj.scenario import LoopSpec  # noqa: E402
+from ftstab_mj.simulation.run_loop import Run, Simulation  # noqa: E402
 
 STEP = 1e-3  # s, physics step and control period
 BATCH = 1000  # samples per Simulation.advance, simulate()'s default batch
@@ -166,7 +167,7 @@ def main(argv=None) -> int:
                  lambda v: v <= 3.0))
     rows.append(("  `ftstab run` process", "s", [(a.wall, a.cpu) for a, _ in pairs], "", None))
     rows.append(("  plain `import mujoco; mj_step` process", "s", [(b.wall, b.cpu) for _, b in pairs], "", None))
-    from ftstab_mj.native import chain_threads
+    from ftstab_mj.simulation.native import chain_threads
 
     rates = [tuple(v / 1e6 for v in chain_rate(True)) for _ in range(R)]
     rows.append((f"ideal chain r=2, 1000 initial states, native ({chain_threads(1000)} threads)", "M traj-steps/s",

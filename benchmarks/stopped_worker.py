@@ -23,7 +23,7 @@ import time
 from pathlib import Path
 
 from benchmarks.sweep_speedup import ROOT, sweep_file
-from ftstab_mj.sweep.table import VARYING_COLUMNS, read_table
+from ftstab_mj.studies.sweep.table import VARYING_COLUMNS, read_table
 
 
 def children(pid: int) -> list[int]:

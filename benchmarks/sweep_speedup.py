@@ -13,7 +13,7 @@ First the set-up cost of a row, in this process: CPU per row of 1 s and of 2 s r
 engines call, 40 rows each, alternated, median of 5), extrapolated linearly to a 0 s row, both for a
 row validated by prepare() in this process (serial, forked workers) and for one the worker validates
 again (spawned and Dask workers). Then the fixed costs of the command, in a fresh process with the
-command's environment (ftstab_mj.batch_env; median of 3): interpreter, imports, load + expand +
+command's environment (ftstab_mj.studies.batch_env; median of 3): interpreter, imports, load + expand +
 prepare, writing the table, and for Dask ``import
 distributed`` and a LocalCluster of 2 workers started and closed; from them and the rows' CPU, the
 best speed-up 2 workers could give if starting them cost nothing. Then each configuration runs the
@@ -49,8 +49,8 @@ import tempfile
 import time
 from pathlib import Path
 
-from ftstab_mj.batch_env import batch_environment
-from ftstab_mj.sweep.table import VARYING_COLUMNS, read_table
+from ftstab_mj.studies.batch_env import batch_environment
+from ftstab_mj.studies.sweep.table import VARYING_COLUMNS, read_table
 
 ROOT = Path(__file__).resolve().parent.parent
 BASE = ROOT / "scenarios" / "cart_r2_robust.toml"
@@ -90,9 +90,9 @@ def setup_cost(folder: Path) -> dict[str, tuple[float, float, float]]:
     """{"prepared" | "validated": (ms of CPU per 1 s row, per 2 s row, extrapolated to a 0 s row)}: the
     task as the engines call it, on rows prepare() validated in this process (serial engine, forked
     workers) and on rows the task validates itself (spawned and Dask workers)."""
-    from ftstab_mj.sweep import expand, load_sweep
-    from ftstab_mj.sweep.engine import run_chunk
-    from ftstab_mj.sweep.runner import prepare
+    from ftstab_mj.studies.sweep import expand, load_sweep
+    from ftstab_mj.studies.sweep.engine import run_chunk
+    from ftstab_mj.studies.sweep.row import prepare
 
     sweeps = {}
     for d in (1.0, 2.0):
@@ -129,23 +129,23 @@ def main():
     def mark(name):
         marks.append((name, time.process_time(), time.perf_counter()))
 
-    import ftstab_mj.cli, ftstab_mj.metrics, ftstab_mj.scenario.run, ftstab_mj.sim, ftstab_mj.sweep.runner
+    import ftstab_mj.cli, ftstab_mj.metrics.run_metrics, ftstab_mj.scenario.run, ftstab_mj.simulation.run_loop, ftstab_mj.studies.sweep.row
     mark("imports")
     from pathlib import Path
-    from ftstab_mj.sweep import expand, load_sweep
-    from ftstab_mj.sweep.runner import prepare
+    from ftstab_mj.studies.sweep import expand, load_sweep
+    from ftstab_mj.studies.sweep.row import prepare
     sweep = load_sweep(sys.argv[1])
     rows = expand(sweep)
     prepare(sweep, rows)
     mark("load, expand, prepare")
-    from ftstab_mj.sweep.table import load_writer, read_journal, write_table
+    from ftstab_mj.studies.sweep.table import load_writer, read_journal, write_table
     load_writer(Path(sys.argv[3]))
     mark("import the table writer")
     write_table(list(read_journal(Path(sys.argv[2])).values()), Path(sys.argv[3]))
     mark("write the table")
     import distributed
     mark("import distributed")
-    from ftstab_mj.sweep.engine import _dask_close, _dask_connect
+    from ftstab_mj.studies.sweep.engine import _dask_close, _dask_connect
     client, cluster = _dask_connect(2, None)
     mark("LocalCluster of 2 up")
     started = sorted(client.run(worker_cpu).values())  # the workers' own CPU, not in this process's
@@ -179,7 +179,7 @@ if __name__ == "__main__":  # a spawned Dask worker imports this file again: it 
 
 COMPILE = r"""
 import sys, time
-import ftstab_mj.cli, ftstab_mj.metrics, ftstab_mj.scenario.run, ftstab_mj.sim, ftstab_mj.sweep.runner
+import ftstab_mj.cli, ftstab_mj.metrics.run_metrics, ftstab_mj.scenario.run, ftstab_mj.simulation.run_loop, ftstab_mj.studies.sweep.row
 files = [m.__file__ for m in list(sys.modules.values())
          if getattr(m, "__file__", None) and m.__name__.startswith("ftstab_mj") and m.__file__.endswith(".py")]
 t0 = time.process_time()
@@ -242,7 +242,7 @@ def start_external(folder: Path, env: dict, name: str = "defaults"):
     """A `dask scheduler` and `dask worker --nworkers 2 --nthreads 1` as subprocesses, with Dask's default
     configuration ("defaults") or with engine.QUIET's as the README's cluster commands set it ("quiet");
     (address, procs)."""
-    from ftstab_mj.sweep.engine import QUIET
+    from ftstab_mj.studies.sweep.engine import QUIET
 
     env = {**env, **(config_environment(QUIET) if name == "quiet" else {})}
     addr_file = folder / f"scheduler-{name}.json"

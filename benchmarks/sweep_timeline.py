@@ -36,7 +36,7 @@ ROOT = Path(__file__).resolve().parent.parent
 CHILD = r"""
 import json, os, sys, time
 T0 = time.time()
-from ftstab_mj.batch_env import batch_environment, start_forkserver
+from ftstab_mj.studies.batch_env import batch_environment, start_forkserver
 
 
 class Timed:  # the task with the row's worker and thread CPU added (pickled by value onto the workers)
@@ -64,8 +64,8 @@ def main():
     engine_name, workers, path, scheduler, out = sys.argv[1], int(sys.argv[2]), sys.argv[3], sys.argv[4] or None, sys.argv[5]
     if engine_name == "dask" and not scheduler:
         start_forkserver()  # as cmd_sweep
-    from ftstab_mj.sweep import engine, expand, load_sweep
-    from ftstab_mj.sweep.runner import prepare
+    from ftstab_mj.studies.sweep import engine, expand, load_sweep
+    from ftstab_mj.studies.sweep.row import prepare
 
     sweep = load_sweep(path)
     rows = expand(sweep)
@@ -124,7 +124,7 @@ def main():
     ap.add_argument("--scheduler", help="also run on the workers of this Dask scheduler")
     args = ap.parse_args()
     from benchmarks.sweep_speedup import sweep_file
-    from ftstab_mj.batch_env import batch_environment
+    from ftstab_mj.studies.batch_env import batch_environment
 
     configs = {"serial": ("serial", 1), "processes, 2": ("processes", 2), "dask LocalCluster, 2": ("dask", 2)}
     if args.scheduler:

@@ -5,7 +5,9 @@ Python API (ftstab_mj/api.py; imported on first use, so ``import ftstab_mj`` sta
 overrides=None)``, ``replay(path)``.
 """
 
-__version__ = "0.1.0"
+# Bumped, with a CHANGELOG.md entry, whenever the log or scenario format changes; logs record both.
+__version__ = "0.2.0"
+LOG_FORMAT = 2  # the MCAP log's layout (1: every log written before 0.2.0); readers branch on it
 __all__ = ["Result", "load_scenario", "replay", "run", "__version__"]
 
 

@@ -3,7 +3,7 @@ it at :func:`main`).
 
 No signal may end the command with a traceback or kill it without a word. So the first thing this
 module does, before importing any Python code, is to give SIGINT, SIGTERM and SIGHUP a handler that
-only notes them (through ``_signal``, the C module); :func:`main` hands them to ftstab_mj.interrupts
+only notes them (through ``_signal``, the C module); :func:`main` hands them to ftstab_mj.simulation.interrupts
 (a noted signal stops the command there: exit 128 + signal, no log) and, once the exit code is
 decided, has them ignored to the end (interrupts.finish). Before this module runs (the
 interpreter's start-up, ``site``, the package's ``__init__``) Python's own handling applies.
@@ -11,7 +11,7 @@ interpreter's start-up, ``site``, the package's ``__init__``) Python's own handl
 
 import _signal
 
-_noted: list[int] = []  # signals that came before ftstab_mj.interrupts took over
+_noted: list[int] = []  # signals that came before ftstab_mj.simulation.interrupts took over
 
 
 def _note(signum, frame):
@@ -25,7 +25,7 @@ for _name in ("SIGINT", "SIGTERM", "SIGHUP"):
 
 import sys  # noqa: E402 - after the handlers, on purpose
 
-from ftstab_mj.batch_env import BATCH_VERBS, batch_environment  # noqa: E402 - imports os only
+from ftstab_mj.studies.batch_env import BATCH_VERBS, batch_environment  # noqa: E402 - imports os only
 
 
 def main() -> int:
@@ -47,7 +47,7 @@ def main() -> int:
     if sys.argv[1:2] and sys.argv[1] in BATCH_VERBS:  # before anything imports NumPy or MuJoCo
         batch_environment()
     try:
-        from ftstab_mj import interrupts
+        from ftstab_mj.simulation import interrupts
 
         interrupts.own_process(_noted)
         from ftstab_mj.cli import main as command

@@ -115,8 +115,8 @@ def replay(path, keep_samples=True) -> Result:
     grow with the log; the same metrics). Raises LogError when it is not a log, DamagedLog when its
     bytes were altered."""
     from ftstab_mj.logs.reader import read_log, stream_metrics
-    from ftstab_mj.metrics import compute_metrics
-    from ftstab_mj.records import INTERRUPTED
+    from ftstab_mj.metrics.run_metrics import compute_metrics
+    from ftstab_mj.simulation.records import INTERRUPTED
 
     if keep_samples:
         log = read_log(path)

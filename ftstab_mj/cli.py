@@ -1,4 +1,7 @@
-"""The ``ftstab`` command. Exit codes: 0 success, 1 a check failed, 2 bad input (one line, no traceback)."""
+"""Layer 10, the command line: the ``ftstab`` command. Exit codes: 0 success, 1 a check failed, 2 bad input (one line, no traceback).
+
+May import: every layer below.
+"""
 
 from __future__ import annotations
 
@@ -8,7 +11,7 @@ import math
 import os
 import sys
 
-from ftstab_mj.errors import CallbackError, FtstabError, LogWriteError
+from ftstab_mj.config.errors import CallbackError, FtstabError, LogWriteError
 
 
 class UsageError(FtstabError, ValueError):
@@ -252,8 +255,8 @@ def _read_log(path):
 
 def _replayed_metrics(log):
     """Metrics recomputed from the log's arrays, with the recorded status (interrupted if none)."""
-    from ftstab_mj.metrics import compute_metrics
-    from ftstab_mj.records import INTERRUPTED
+    from ftstab_mj.metrics.run_metrics import compute_metrics
+    from ftstab_mj.simulation.records import INTERRUPTED
 
     status = log.recorded["status"] if log.recorded else INTERRUPTED
     return compute_metrics(log.info, log.loops, status)
@@ -275,7 +278,7 @@ def _streamed_metrics(path):
 
 
 def cmd_replay(args) -> int:
-    from ftstab_mj.metrics import CERTIFICATE_DERIVED, certificate_moved, format_table
+    from ftstab_mj.metrics.run_metrics import CERTIFICATE_DERIVED, certificate_moved, format_table
 
     if args.rrd:  # the recording needs the samples themselves
         log = _read_log(args.log)
@@ -284,7 +287,7 @@ def cmd_replay(args) -> int:
         log, metrics = _streamed_metrics(args.log)
     diff, derived = [], []
     if log.recorded and log.recorded.get("metrics"):  # a failed run records its status without metrics
-        from ftstab_mj.keypath import flatten
+        from ftstab_mj.config.keypath import flatten
 
         rec, now = flatten(log.recorded["metrics"]), flatten(metrics)
         # a metric the recording version did not compute yet (an older log) is not a difference
@@ -336,7 +339,7 @@ def cmd_replay(args) -> int:
         print("\n".join(diff), file=sys.stderr)
         failed = True
     if args.verify:
-        from ftstab_mj.interrupts import interruption
+        from ftstab_mj.simulation.interrupts import interruption
         from ftstab_mj.scenario.run import verify_log
 
         try:
@@ -357,7 +360,7 @@ def cmd_replay(args) -> int:
 
 
 def cmd_report(args) -> int:
-    from ftstab_mj.report import check_out, report_data, write_report
+    from ftstab_mj.figures.run_report import check_out, report_data, write_report
 
     check_out(args.out)  # a bad file name before the log is read
     rep = report_data(_read_log(args.log))
@@ -368,7 +371,7 @@ def cmd_report(args) -> int:
 
 
 def cmd_check(args) -> int:
-    from ftstab_mj.expectations import (PIN_HEADER, ExpectationError, check_metrics, load_expectations,
+    from ftstab_mj.metrics.expectations import (PIN_HEADER, ExpectationError, check_metrics, load_expectations,
                                         pin_expectations, to_toml)
 
     if args.pin:
@@ -408,7 +411,9 @@ def cmd_list(args) -> int:
     from ftstab_mj.control import LAWS
     from ftstab_mj.plants import PLANTS
     from ftstab_mj.scenario import SCENARIO_DIR, shipped_scenarios
+    from ftstab_mj.scenario.plugins import load_entry_points, origin
 
+    load_entry_points()  # installed distributions' laws and plants are listed with the others
     rows = shipped_scenarios()
     width = max((len(name) for name, _, _ in rows), default=0)
     for name, _, description in rows:
@@ -416,20 +421,22 @@ def cmd_list(args) -> int:
     print(f"\n{len(rows)} scenarios in {SCENARIO_DIR}; run one with: ftstab run NAME [--set key.path=value]")
     print("\nlaws (loops.<name>.controller.law) and their keys:")
     for cls in LAWS.values():
-        print(f"  {cls.name}: {cls.summary}")
+        where = origin(cls.__module__)
+        print(f"  {cls.name}: {cls.summary}" + ("" if where == "built in" else f"  [{where}]"))
         for p in cls.all_params():
             default = "" if p.required else f" [default {p.default!r}]"
             print(f"      {p.name}: {p.describe()}{default}")
     print("\nplants (plant.model):")
     for entry in PLANTS.values():
-        print(f"  {entry.name}: {entry.summary}")
+        where = origin(entry.build.__module__)
+        print(f"  {entry.name}: {entry.summary}" + ("" if where == "built in" else f"  [{where}]"))
     return 0
 
 
 def cmd_run(args) -> int:
     from pathlib import Path
 
-    from ftstab_mj import interrupts
+    from ftstab_mj.simulation import interrupts
 
     from ftstab_mj.scenario import find_scenario, load_scenario
     from ftstab_mj.scenario.run import ProgressSink, run_scenario
@@ -444,7 +451,7 @@ def cmd_run(args) -> int:
         raise UsageError(f"--out {args.out}: expected a directory for the logs, found a file")
     from ftstab_mj.logs import McapSink, RerunSink
     from ftstab_mj.logs.files import check_replaceable
-    from ftstab_mj.metrics import format_table
+    from ftstab_mj.metrics.run_metrics import format_table
 
     try:
         out.mkdir(parents=True, exist_ok=True)
@@ -578,15 +585,15 @@ def _engine(args) -> str:
 def cmd_sweep(args) -> int:
     engine = _engine(args)
     if engine == "dask" and not args.scheduler and not args.resume:  # as engine.started_ahead below
-        from ftstab_mj.batch_env import start_forkserver
+        from ftstab_mj.studies.batch_env import start_forkserver
 
         start_forkserver()  # the local cluster's workers' imports, made beside this process's own
     from pathlib import Path
 
     from ftstab_mj.scenario.shipped import find_sweep
-    from ftstab_mj.sweep import expand, load_sweep, run_sweep
-    from ftstab_mj.sweep.engine import started_ahead
-    from ftstab_mj.sweep.runner import prepare
+    from ftstab_mj.studies.sweep import expand, load_sweep, run_sweep
+    from ftstab_mj.studies.sweep.engine import started_ahead
+    from ftstab_mj.studies.sweep.row import prepare
 
     sweep = load_sweep(find_sweep(args.sweep))
     rows = expand(sweep)
@@ -605,7 +612,7 @@ def cmd_sweep(args) -> int:
           f"{outcome.ran} ran now in {outcome.elapsed_s:.2f} s{own}")
     print(f"table: {outcome.table}")
     if args.report and outcome.done:
-        from ftstab_mj.sweep.report import make_report
+        from ftstab_mj.figures.sweep_report import make_report
 
         paths, fits = make_report(sweep, outcome.table, out / "report")
         for path in paths:
@@ -638,10 +645,10 @@ def _floats(text: str) -> tuple[float, ...]:
 def cmd_montecarlo(args) -> int:
     from pathlib import Path
 
-    from ftstab_mj import montecarlo as mc
-    from ftstab_mj.metrics import bound_applies
+    from ftstab_mj.studies import montecarlo as mc
+    from ftstab_mj.metrics.run_metrics import bound_applies
     from ftstab_mj.scenario import find_scenario, load_scenario
-    from ftstab_mj.sweep.table import write_table
+    from ftstab_mj.studies.sweep.table import write_table
 
     path = find_scenario(args.scenario)
     sc = load_scenario(path, args.set)
@@ -675,8 +682,8 @@ def cmd_montecarlo(args) -> int:
         rows, info = mc.run_chain(sc, loop, Z0, progress=progress)
         applies = bound_applies(info)
     else:
-        from ftstab_mj.sweep.runner import ScenarioTask
-        from ftstab_mj.tomlfile import read_toml
+        from ftstab_mj.studies.sweep.row import ScenarioTask
+        from ftstab_mj.config.tomlfile import read_toml
         from ftstab_mj.scenario.loader import apply_override
 
         raw = read_toml(path, "scenario file (.toml)")
@@ -712,9 +719,9 @@ def cmd_montecarlo(args) -> int:
 def cmd_compare(args) -> int:
     from pathlib import Path
 
-    from ftstab_mj import compare
-    from ftstab_mj.sweep.engine import execute
-    from ftstab_mj.sweep.table import write_table
+    from ftstab_mj.studies import compare
+    from ftstab_mj.studies.sweep.engine import execute
+    from ftstab_mj.studies.sweep.table import write_table
 
     cmp = compare.load_comparison(args.comparison)
     task, items = compare.prepare(cmp, args.set)  # every row validated before any run
@@ -743,7 +750,10 @@ def cmd_compare(args) -> int:
         print(f"log-log slopes of max |z_i| against {cmp.grid_path} ({len(cmp.grid)} values):")
         print(compare.format_rows(slopes, list(slopes[0])))
         paths.append(compare.write_csv(slopes, out / f"{cmp.name}_slopes.csv"))
-    paths += compare.draw_figures(cmp, rows, slopes, series, out)
+    from ftstab_mj.figures.compare_report import draw_figures
+
+    where = f" at {cmp.grid_path} = {cmp.grid[0]:g}" if cmp.grid_path else ""
+    paths += draw_figures(cmp.name, rows, cmp.grid_path, cmp.grid, series, out, where)
     for path in paths:
         print(f"wrote {path}")
     return 0
@@ -829,12 +839,12 @@ def build_parser() -> argparse.ArgumentParser:
                         description="Exit 0 when every expectation of EXPECT.toml holds for the metrics "
                                     "recomputed from LOG.mcap, 1 with the failing ones listed otherwise (or when the "
                                     "log has no samples to check them on). Format: "
-                                    "see ftstab_mj/expectations.py.")
+                                    "see ftstab_mj/metrics/expectations.py.")
     ck.add_argument("log", metavar="LOG.mcap")
     what = ck.add_mutually_exclusive_group(required=True)
     what.add_argument("--expect", metavar="EXPECT.toml", help="the pinned metrics to compare with")
     what.add_argument("--pin", metavar="OUT.toml", help="write OUT.toml: this log's metrics with the default "
-                                                       "tolerances (ftstab_mj/expectations.py), to check later runs")
+                                                       "tolerances (ftstab_mj/metrics/expectations.py), to check later runs")
     ck.set_defaults(func=cmd_check)
 
     rt = sub.add_parser("report", help="the figures of one run for a paper (PNG or self-contained HTML)",
@@ -842,7 +852,7 @@ def build_parser() -> argparse.ArgumentParser:
                                     "settle level and Theorem 1's envelope and T(z0) (nominal and robust laws with a "
                                     "certificate), phi_hat and gamma_hat with Theorem 3's bounds (adaptive law); "
                                     "axes in their units. FIG.html embeds the PNG (no network needed). What each "
-                                    "panel holds: ftstab_mj/report.py. Exit 2 on a log that cannot be read.")
+                                    "panel holds: ftstab_mj/figures/run_report.py. Exit 2 on a log that cannot be read.")
     rt.add_argument("log", metavar="LOG.mcap")
     rt.add_argument("--out", required=True, metavar="FIG.png|FIG.html", help="the figure to write")
     rt.set_defaults(func=cmd_report)
@@ -961,7 +971,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv=None) -> int:
-    from ftstab_mj import interrupts
+    from ftstab_mj.simulation import interrupts
 
     with interrupts.handling(take_over=True):  # SIGTERM and SIGHUP stop a command like Ctrl-C (exit 128 + signal)
         try:

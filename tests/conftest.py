@@ -5,6 +5,7 @@ import re
 import signal
 import subprocess
 import sys
+import tempfile
 from pathlib import Path
 
 import pytest
@@ -16,11 +17,15 @@ def pytest_configure(config):
     """Build the native kernel in place first (a no-op when it is up to date or installed), so that a
     source checkout tests the C path that ``pip install`` ships, not only the Python fallback. Once,
     in the main process (xdist workers start after it). A failed build (no compiler) leaves the
-    native tests skipped, or failing under FTSTAB_REQUIRE_NATIVE=1 (CI)."""
+    native tests skipped, or failing under FTSTAB_REQUIRE_NATIVE=1 (CI). The compiler's intermediate
+    files go to a temporary folder: the only file the build leaves in the checkout is the kernel
+    itself (git-ignored, where an editable install puts it too)."""
     if os.environ.get("PYTEST_XDIST_WORKER") or not (ROOT / "setup.py").exists():
         return
-    subprocess.run([sys.executable, "setup.py", "-q", "build_ext", "--inplace"], cwd=ROOT, capture_output=True,
-                   timeout=300)
+    with tempfile.TemporaryDirectory() as temp:
+        subprocess.run([sys.executable, "setup.py", "-q", "build_ext", "--inplace", "--build-temp", temp,
+                        "--build-lib", temp], cwd=ROOT,
+                       capture_output=True, timeout=300)
 
 
 @pytest.fixture(autouse=True)
@@ -29,7 +34,7 @@ def no_control_callback_left_installed():
     its timer callback (mjcb_time, which runs switch off)."""
     import mujoco
 
-    from ftstab_mj.callback import _timer_slot
+    from ftstab_mj.plants.callback import _timer_slot
 
     timer = _timer_slot()
     timer_before = timer.value if timer is not None else None
@@ -129,7 +134,7 @@ def record_run(plant, loops, duration, period, physics_step, sinks=(), metrics=F
                scenario_dict=None, **sim_kw):
     """A run of ``loops`` on ``plant`` recorded by ``sinks`` (the scenario runner's record): its RunResult."""
     from ftstab_mj.scenario.run import record
-    from ftstab_mj.sim import Run, Simulation
+    from ftstab_mj.simulation.run_loop import Run, Simulation
 
     sim = Simulation(plant, loops, period, physics_step, **sim_kw)
     return record(Run(sim, duration, batch_size, scenario_dict, keep_samples=True), sinks, metrics)[0]

@@ -22,16 +22,15 @@ from __future__ import annotations
 import contextlib
 import copy
 import io
-import math
 import random
 import shutil
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from ftstab_mj.cli import main
-from ftstab_mj.keypath import flatten, parse
+from ftstab_mj.config.keypath import flatten, parse
 from ftstab_mj.scenario import shipped_scenarios
-from ftstab_mj.tomlfile import dumps, read_toml
+from ftstab_mj.config.tomlfile import dumps, read_toml
 
 DEEP = "[" * 40 + "]" * 40
 HOSTILE_VALUES = [
@@ -135,7 +134,7 @@ def random_set(rng: random.Random, raw: dict) -> str:
 
 def _steps(path: Path, sets) -> float:
     """Physics steps the scenario would run, or 0 when the loader refuses it."""
-    from ftstab_mj.errors import FtstabError
+    from ftstab_mj.config.errors import FtstabError
     from ftstab_mj.scenario import load_scenario
 
     try:

@@ -12,9 +12,9 @@ from dataclasses import dataclass, fields
 import numpy as np
 
 from ftstab_mj.control import HongController, RobustLaw
-from ftstab_mj.disturbances import Signal
-from ftstab_mj.ideal_chain import simulate_chain
-from ftstab_mj.sweep.runner import ScenarioTask
+from ftstab_mj.plants.disturbances import Signal
+from ftstab_mj.simulation.ideal_chain import simulate_chain
+from ftstab_mj.studies.sweep.row import ScenarioTask
 
 GAINS = {2: (1.0, 2.0), 3: (1.0, 1.7, 5.0)}
 DEGREE = {2: -0.2, 3: -0.1}

@@ -8,9 +8,9 @@ from __future__ import annotations
 import numpy as np
 
 from ftstab_mj.control import AdaptiveLaw, HongController, NominalLaw, RobustLaw
-from ftstab_mj.disturbances import Signal
-from ftstab_mj.ideal_chain import simulate_chain
-from ftstab_mj.records import LOOP_FIELDS, LoopInfo, MetricSettings, RunInfo, SampleBatch
+from ftstab_mj.plants.disturbances import Signal
+from ftstab_mj.simulation.ideal_chain import simulate_chain
+from ftstab_mj.simulation.records import LOOP_FIELDS, LoopInfo, MetricSettings, RunInfo, SampleBatch
 
 CART_XML = """<mujoco>
   <worldbody>

@@ -6,7 +6,7 @@ import sys
 
 import pytest
 
-from ftstab_mj import native
+from ftstab_mj.simulation import native
 from conftest import ROOT
 
 

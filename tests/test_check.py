@@ -3,10 +3,10 @@
 import pytest
 
 from conftest import run_cli
-from ftstab_mj.expectations import ExpectationError, check_metrics
+from ftstab_mj.metrics.expectations import ExpectationError, check_metrics
 from ftstab_mj.logs import McapSink
-from ftstab_mj.metrics import compute_metrics
-from ftstab_mj.records import COMPLETED
+from ftstab_mj.metrics.run_metrics import compute_metrics
+from ftstab_mj.simulation.records import COMPLETED
 from synthetic_runs import synthetic_run, write_run
 
 METRICS = {"status": "completed", "n_samples": 10,
@@ -58,7 +58,7 @@ def test_malformed_expectations_name_the_key_path(expected, where):
 
 
 def test_an_expectation_table_is_read_by_the_configuration_layer():
-    """The same words as every input file of the testbed (ftstab_mj.validate.Reader)."""
+    """The same words as every input file of the testbed (ftstab_mj.config.validate.Reader)."""
     cases = {
         "tol": ({"value": 1.0, "tol": 0.1}, "e.toml: loops.a.settle_time.tol: expected one of the keys value, atol, "
                                             "rtol, min, max, null, found unknown key 'tol'"),
@@ -117,7 +117,7 @@ def test_pin_then_check_same_log_passes_and_another_run_fails(tmp_path):
 
 
 def test_pin_of_a_run_without_samples_pins_only_its_count():
-    from ftstab_mj.expectations import pin_expectations
+    from ftstab_mj.metrics.expectations import pin_expectations
 
     info, loops, _, _ = synthetic_run("nominal", duration=0.1, with_model=False)
     empty = {k: {f: a[:0] for f, a in v.items()} for k, v in loops.items()}

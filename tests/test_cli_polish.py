@@ -12,7 +12,7 @@ import pytest
 from conftest import ROOT, run_cli
 from ftstab_mj import __version__
 from ftstab_mj.logs.reader import read_log
-from ftstab_mj.records import METRIC_UNITS, UNITS_LEGEND
+from ftstab_mj.simulation.records import METRIC_UNITS, UNITS_LEGEND
 
 
 def test_version_and_bare_command_print_the_version_and_the_verbs():
@@ -95,9 +95,9 @@ def test_the_sweep_report_fits_slopes_only_through_power_laws_and_its_titles_fit
     """V1 is homogeneous: along z0 = (x, 0) it is the power law V1(1, 0) x^d with d = k / (alpha - 1)
     (dV1/dt <= -c V1^alpha, alpha = (d + k) / d), 2 + k = 1.8 for k = -0.2; along z0 = (x, 1) it is
     not one (the velocity's share dominates at small x): no slope there, r^2 said."""
-    from ftstab_mj.sweep import load_sweep
-    from ftstab_mj.sweep.report import MIN_R2, draw_plot
-    from ftstab_mj.sweep.table import read_table
+    from ftstab_mj.studies.sweep import load_sweep
+    from ftstab_mj.figures.sweep_report import MIN_R2, draw_plot
+    from ftstab_mj.studies.sweep.table import read_table
 
     sweep = tmp_path / "shapes.toml"
     title = ("V1 at the initial state against its position component, for two velocities: a power law only "

@@ -9,7 +9,7 @@ import numpy as np
 from conftest import run_cli, start_cli
 
 from ftstab_mj.logs.reader import read_log
-from ftstab_mj.records import SampleBatch
+from ftstab_mj.simulation.records import SampleBatch
 from ftstab_mj.scenario import shipped_scenarios
 from ftstab_mj.scenario.run import ProgressSink
 

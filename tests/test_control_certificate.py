@@ -11,7 +11,7 @@ from ftstab_mj.control import HongController, certify, theorem3_bounds
 from ftstab_mj.control.certificate import unit_level_set_points
 from ftstab_mj.control.hong_terms import Terms
 from ftstab_mj.control.interval import Exp, Iv
-from ftstab_mj.errors import ParameterError
+from ftstab_mj.config.errors import ParameterError
 
 # The reference table of the certificate (max over 2e5 samples of the unit level set), given to 3-4 digits
 REFERENCE = [
@@ -165,7 +165,7 @@ def test_box_bounds_hold_against_search(r):
     exact value a couple of ulps away (test_control_hong: ..._is_backward_stable...), while near
     k = -1/r R's own conditioning makes 1e-9 alone fail by factors up to 1e9 at r = 6 (measured:
     the excess over this slack is at most 0.37 of it over 30 trials per r)."""
-    from ftstab_mj.control.certificate import _Ratio
+    from ftstab_mj.control.certificate import Ratio
 
     rng = np.random.default_rng(77 + r)
     base = [g for g in K0_SETS if len(g) == r][-1]
@@ -175,7 +175,7 @@ def test_box_bounds_hold_against_search(r):
         gains = tuple(float(g) for g in np.array(base) * 2.0 ** rng.uniform(-1, 1, r))
         hong = HongController(r, k, gains, check_hurwitz=False)
         terms = Terms(r, k, gains)
-        obj = _Ratio(terms, "c")
+        obj = Ratio(terms, "c")
         n = 40
         face = int(rng.integers(r))
         mid = rng.uniform(-1, 1, (n, r - 1))
@@ -210,13 +210,13 @@ def test_box_bounds_hold_against_search(r):
 def test_a_box_bound_does_not_depend_on_the_boxes_evaluated_with_it(r):
     """The B&B evaluates a small round's boxes of every face in one call (certificate.MERGE_FACES):
     on random boxes of mixed faces, many at the zeros of the recursion variables (where factors are
-    split, remainders held and paired), _Ratio.boxes in one call gives, bit for bit, what it gives
+    split, remainders held and paired), Ratio.boxes in one call gives, bit for bit, what it gives
     face by face and one box at a time (bound, split coordinate, centre's lower bound, centre), for
     R = dV1/dt / V1^alpha and |dV1/dz_r| / V1^alpha', at a random k and at k near 0 (pairs in use).
     So the soundness checks of one face's boxes hold for the merged call. Before, a factor split on
     one box of a call added a rounding (and the outward-rounded trace of its zero gradient) to the
     bound of every other box: the same box got other bounds in other company."""
-    from ftstab_mj.control.certificate import PAIR_K, _Ratio
+    from ftstab_mj.control.certificate import PAIR_K, Ratio
 
     rng = np.random.default_rng(300 + r)
     base = [g for g in K0_SETS if len(g) == r][-1]
@@ -224,7 +224,7 @@ def test_a_box_bound_does_not_depend_on_the_boxes_evaluated_with_it(r):
     for k in (-rng.uniform(0.05, 0.6) / r, -rng.uniform(0.2, 1.0) * PAIR_K):
         gains = tuple(float(g) for g in np.array(base) * 2.0 ** rng.uniform(-1, 1, r))
         for kind in ("c", "cp"):
-            obj = _Ratio(Terms(r, k, gains), kind)
+            obj = Ratio(Terms(r, k, gains), kind)
             n = 90
             mid = np.sign(rng.uniform(-1, 1, (n, r - 1))) * 10.0 ** rng.uniform(-7, 0, (n, r - 1))
             half = np.abs(mid) * 10.0 ** rng.uniform(-2, 0.5, (n, r - 1))  # many reach a zero
@@ -264,7 +264,7 @@ def test_a_variable_absent_from_a_box_cannot_reach_its_bound(r, monkeypatch):
         lo, hi = np.clip(mid - half, -1, 1), np.clip(mid + half, -1, 1)
         face = rng.integers(0, r, n)
         for kind in ("c", "cp"):
-            obj = cm._Ratio(Terms(r, k, gains), kind)
+            obj = cm.Ratio(Terms(r, k, gains), kind)
             with np.errstate(all="ignore"):
                 clean = obj.boxes(face, lo, hi)
                 assert np.isfinite(clean[0]).mean() > 0.5, (r, k, kind)  # bounds to poison
@@ -310,7 +310,7 @@ def test_the_box_bound_is_second_order_at_the_witness(r, k, gains, monkeypatch):
     import ftstab_mj.control.certificate as cm
 
     terms = Terms(r, k, gains)
-    obj = cm._Ratio(terms, "c")
+    obj = cm.Ratio(terms, "c")
     # the witness search's local maximum (the r = 6 row is refuted on the zero set z_4 = 0 first)
     monkeypatch.setattr(cm, "_zero_set_witness", lambda *args: None)
     cert = certify(HongController(r, k, gains), max_boxes=1)
@@ -322,7 +322,7 @@ def test_the_box_bound_is_second_order_at_the_witness(r, k, gains, monkeypatch):
 
 def test_the_box_bound_on_the_zeros_at_k_near_0_is_sound_and_step_6_tightens_it(monkeypatch):
     """At r = 6, k = -0.002 (six decades of gains) the powers of s_j with exponents near 1 are split
-    affinely on boxes that hold the zero of s_j, and step 6 of _Ratio.boxes pairs a coordinate with
+    affinely on boxes that hold the zero of s_j, and step 6 of Ratio.boxes pairs a coordinate with
     the remainder of its own factor. On boxes of half-width h = 1e-5 .. 1e-7 centred on the witness
     with one coordinate set to 0 (benchmarks/certificate_order.py's boxes), the bound is never below
     the guaranteed values of R at many points of the box (bound_excess >= 0), with step 6 and without
@@ -335,7 +335,7 @@ def test_the_box_bound_on_the_zeros_at_k_near_0_is_sound_and_step_6_tightens_it(
 
     r, k, gains = 6, -0.002, (0.62, 1.15, 1.54, 3.88, 39.13, 1e5)
     terms = Terms(r, k, gains)
-    obj = cm._Ratio(terms, "c")
+    obj = cm.Ratio(terms, "c")
     monkeypatch.setattr(cm, "_zero_set_witness", lambda *args: None)  # the search's witness, as above
     cert = certify(HongController(r, k, gains), max_boxes=1)
     f, x = face_coordinates(r, k, terms.s_of(np.array([cert.witness]))[0])
@@ -359,11 +359,11 @@ def test_the_box_bound_on_the_zeros_at_k_near_0_is_sound_and_step_6_tightens_it(
 
 
 def _mean_value_violations(r, seed, genuine=True, boxes=60, pairs=40, slope_scale=1.0, one_at_a_time=False):
-    """Steps 2-3 of certificate._Ratio.boxes, checked off the manifold: on random boxes near the
+    """Steps 2-3 of certificate.Ratio.boxes, checked off the manifold: on random boxes near the
     zeros of the recursion variables (where factors phi become variables of their own), random
     point pairs P, Q of the product X x P (phi anywhere in its range, not phi(s)) must satisfy
     F(Q) <= F(P) + sum_j sup(G_j (Q_j - P_j)), G the gradient enclosure the B&B uses and F the
-    same function (``_Ratio.at``), both outward-rounded: a violation is a proof that G is not an
+    same function (``Ratio.at``), both outward-rounded: a violation is a proof that G is not an
     enclosure of F's gradient. genuine=False evaluates without Terms.evaluate's ``extra`` masks
     (the rule that preceded it: the identities of the manifold used on the whole product);
     slope_scale != 1 evaluates F with the affine splits' slopes scaled (phi = scale a x + delta),
@@ -371,14 +371,14 @@ def _mean_value_violations(r, seed, genuine=True, boxes=60, pairs=40, slope_scal
     coordinate and each remainder in turn), so the inequality has no slack from the other variables'
     terms: an error in one partial derivative (e.g. a remainder's path through W) shows at its own
     size. Returns (violations, pairs checked)."""
-    from ftstab_mj.control.certificate import _Ratio, _term
-    from ftstab_mj.control.interval import _up
+    from ftstab_mj.control.certificate import Ratio, _term
+    from ftstab_mj.control.interval import round_up
 
     rng = np.random.default_rng(seed)
     base = [g for g in K0_SETS if len(g) == r][-1]
     k = -rng.uniform(0.05, 0.4) / r
     gains = tuple(float(g) for g in np.array(base) * 2.0 ** rng.uniform(-1, 1, r))
-    obj = _Ratio(Terms(r, k, gains), "c")
+    obj = Ratio(Terms(r, k, gains), "c")
     if not genuine:
         evaluate = obj.t.evaluate
         obj.t.evaluate = lambda s, factor=None, extra=None: evaluate(s, factor)
@@ -426,7 +426,7 @@ def _mean_value_violations(r, seed, genuine=True, boxes=60, pairs=40, slope_scal
                         a, b = flat(pq[jj - r]), flat(pp[jj - r])
                     else:
                         continue
-                    bound = _up(bound + _term(Iv(np.repeat(g.lo, pairs), np.repeat(g.hi, pairs)), a, a, b))
+                    bound = round_up(bound + _term(Iv(np.repeat(g.lo, pairs), np.repeat(g.hi, pairs)), a, a, b))
                 ok = rep(near if kind != "p" else phis[which].near) & np.isfinite(bound) & np.isfinite(FQ.lo)
                 bad += int(np.sum(FQ.lo[ok] > bound[ok]))
                 checked += int(ok.sum())
@@ -436,14 +436,14 @@ def _mean_value_violations(r, seed, genuine=True, boxes=60, pairs=40, slope_scal
 @pytest.mark.parametrize("r", [3, 4, 5, 6])
 def test_mean_value_form_encloses_the_gradient_off_the_manifold(r, monkeypatch):
     """The gradient enclosure of the B&B's mean-value form is one of F on the whole product of the
-    box and the remainder ranges (certificate._Ratio.boxes, steps 2-3): no pair of random points of
+    box and the remainder ranges (certificate.Ratio.boxes, steps 2-3): no pair of random points of
     it violates the mean value inequality, nor any pair that differs in one variable; and the check
     has teeth: the rule that preceded it (with the manifold's identities used off the manifold)
     violates it on the same boxes, and so does F evaluated with slopes 10 % off those its gradient
     was taken with. W's own gradient with sig(z, b) - sig(v, b) taken as s (its value on the
     manifold, not widened by the remainders' reach) passes the pairs (0 violations at r = 3..6) and
     fails the one-variable moves (108, 679, 124, 1382 at r = 3..6)."""
-    from ftstab_mj.control.hong_terms import _power
+    from ftstab_mj.control.hong_terms import exact_power
 
     bad, checked = _mean_value_violations(r, 11 + r)
     assert checked > 2000
@@ -456,7 +456,7 @@ def test_mean_value_form_encloses_the_gradient_off_the_manifold(r, monkeypatch):
     own_W = Terms._W
 
     def manifold_dz(self, z, a, S, s, diff, b_index, fl, offm=None, f=None, slot=None):
-        return own_W(self, z, a, S, s, diff, b_index, fl, offm, _power, slot)  # _power: the enclosure as given
+        return own_W(self, z, a, S, s, diff, b_index, fl, offm, exact_power, slot)  # exact_power: the enclosure as given
 
     monkeypatch.setattr(Terms, "_W", manifold_dz)
     dz_bad, _ = _mean_value_violations(r, 11 + r, one_at_a_time=True)
@@ -544,7 +544,7 @@ def test_the_gap_phase_stops_once_a_box_retired_for_memory_sets_c_lower(monkeypa
     import ftstab_mj.control.certificate as cm
 
     monkeypatch.setattr(cm, "MAX_LIVE_BOXES", 400)
-    obj = cm._Ratio(Terms(4, -0.05, (0.83467, 1.4216, 2.8157, 100.0)), "c")
+    obj = cm.Ratio(Terms(4, -0.05, (0.83467, 1.4216, 2.8157, 100.0)), "c")
     rng = np.random.default_rng(0)
     tops = []
     m = cm._maximise(obj, cm._seed_points(obj, cm.DEFAULT_SAMPLES, rng), cm.DEFAULT_RTOL, np.inf, True,
@@ -592,7 +592,7 @@ def test_c_lower_under_the_live_box_cap_is_the_bound_of_every_box_at_the_end(mon
     import ftstab_mj.control.certificate as cm
 
     monkeypatch.setattr(cm, "MAX_LIVE_BOXES", cap)
-    evaluated, boxes = [], cm._Ratio.boxes
+    evaluated, boxes = [], cm.Ratio.boxes
 
     def recorded(obj, face, lo, hi, *args, **kwargs):
         out = boxes(obj, face, lo, hi, *args, **kwargs)
@@ -600,7 +600,7 @@ def test_c_lower_under_the_live_box_cap_is_the_bound_of_every_box_at_the_end(mon
             evaluated.append((np.copy(face), lo.copy(), hi.copy(), out[0].copy()))
         return out
 
-    monkeypatch.setattr(cm._Ratio, "boxes", recorded)
+    monkeypatch.setattr(cm.Ratio, "boxes", recorded)
     cert = certify(HongController(r, k, gains), max_boxes=max_boxes)
     top, open_at_end = _split_tree_bound(evaluated)
     assert cert.c_lower == -top, (cert.c_lower, -top)
@@ -663,9 +663,9 @@ def test_interval_arithmetic_encloses():
 
 
 def test_outward_rounding_moves_past_the_next_float():
-    """_up/_dn (a multiply and two adds instead of np.nextafter) reach at least the neighbouring
+    """round_up/round_down (a multiply and two adds instead of np.nextafter) reach at least the neighbouring
     float for every kind of double: binade edges, subnormals, zero, the largest floats; NaN stays NaN."""
-    from ftstab_mj.control.interval import _dn, _up
+    from ftstab_mj.control.interval import round_down, round_up
 
     rng = np.random.default_rng(11)
     edges = 2.0 ** np.arange(-1074, 1024, dtype=float)
@@ -675,9 +675,9 @@ def test_outward_rounding_moves_past_the_next_float():
     x = x[np.isfinite(x)]
     with np.errstate(over="ignore"):  # the largest float's neighbour is inf
         for n in (1, 2):
-            assert np.all(_up(x, n) >= np.nextafter(x, np.inf)) and np.all(_dn(x, n) <= np.nextafter(x, -np.inf))
-    assert np.isnan(_up(np.nan)) and np.isnan(_dn(np.nan))
-    assert _up(-np.inf) == -np.finfo(float).max and _dn(np.inf) == np.finfo(float).max
+            assert np.all(round_up(x, n) >= np.nextafter(x, np.inf)) and np.all(round_down(x, n) <= np.nextafter(x, -np.inf))
+    assert np.isnan(round_up(np.nan)) and np.isnan(round_down(np.nan))
+    assert round_up(-np.inf) == -np.finfo(float).max and round_down(np.inf) == np.finfo(float).max
 
 
 def test_power_enclosure_over_an_exponent_interval():
@@ -783,7 +783,7 @@ def test_envelope_points_and_chords_are_never_below_theorem_1s_exact_envelope():
     a few ulps more per operation, times the exponent 1/(1 - a) <= 200 for k <= -0.01). The float
     formula falls below the exact value at some points (so rounding matters)."""
     from ftstab_mj.control.certificate import CERTIFIED, Certificate
-    from ftstab_mj.metrics import envelope
+    from ftstab_mj.metrics.run_metrics import envelope
 
     rng = np.random.default_rng(5)
     worst, float_below, n = 0.0, 0, 0
@@ -818,7 +818,7 @@ def test_envelope_points_and_chords_are_never_below_theorem_1s_exact_envelope():
 def test_cache_gives_the_fresh_result(tmp_path, monkeypatch):
     """A certificate read back from the disk cache is identical to a fresh one; an unwritable cache
     directory falls back to computing (same result)."""
-    from ftstab_mj import certificate_cache as cc
+    from ftstab_mj.metrics import certificate_cache as cc
 
     monkeypatch.setenv("FTSTAB_CACHE_DIR", str(tmp_path / "cache"))
     cc.clear_memory()
@@ -915,15 +915,15 @@ def test_the_floor_of_W_holds_for_any_arguments_and_is_nearly_tight_near_k0():
 def _held_boxes(r, seed, boxes=48):
     """Random boxes of each face of Terms(r, k, gains) (random k < 0, gains around K0_SETS') that hold
     s_j = 0 for one coordinate j (an end at 0 or straddling it) and are thin (1e-6..1e-2) in every
-    coordinate: where |s_j|^(q_j - 1) (an affine factor, step 5 of certificate._Ratio.boxes) takes
+    coordinate: where |s_j|^(q_j - 1) (an affine factor, step 5 of certificate.Ratio.boxes) takes
     nearly all of [0, 1]. Yields (obj, face, lo, hi)."""
-    from ftstab_mj.control.certificate import _Ratio
+    from ftstab_mj.control.certificate import Ratio
 
     rng = np.random.default_rng(seed)
     base = [g for g in K0_SETS if len(g) == r][-1]
     k = -rng.uniform(0.002, 0.4) / r
     gains = tuple(float(g) for g in np.array(base) * 2.0 ** rng.uniform(-1, 1, r))
-    obj = _Ratio(Terms(r, k, gains), "c")
+    obj = Ratio(Terms(r, k, gains), "c")
     d = r - 1
     for face in range(r):
         mid = rng.uniform(-1, 1, (boxes, d)) * 10.0 ** rng.uniform(-3, 0, (boxes, d))
@@ -942,13 +942,13 @@ def _held_violations(r, seed, monkeypatch=None, one_end=False):
     import ftstab_mj.control.certificate as cm
 
     if one_end:
-        forms = cm._Ratio._forms
-        monkeypatch.setattr(cm._Ratio, "_forms", lambda self, face, lo, hi, pin=None: forms(
+        forms = cm.Ratio._forms
+        monkeypatch.setattr(cm.Ratio, "_forms", lambda self, face, lo, hi, pin=None: forms(
             self, face, lo, hi, None if pin is None else {sl: np.minimum(p, 1) for sl, p in pin.items()}))
     monkeypatch.setattr(cm, "HELD_EXPONENT", np.inf)  # the step at every exponent (the limit is for speed)
     held_m = []
-    held = cm._Ratio._held
-    monkeypatch.setattr(cm._Ratio, "_held", lambda self, *a: held_m.append(held(self, *a)) or held_m[-1])
+    held = cm.Ratio._held
+    monkeypatch.setattr(cm.Ratio, "_held", lambda self, *a: held_m.append(held(self, *a)) or held_m[-1])
     rng = np.random.default_rng(seed + 1)
     bad = used = total = 0
     for obj, face, lo, hi in _held_boxes(r, seed):
@@ -971,7 +971,7 @@ def _held_violations(r, seed, monkeypatch=None, one_end=False):
 
 @pytest.mark.parametrize("r", [3, 4, 5, 6])
 def test_held_ends_bound_R_on_boxes_that_hold_a_zero(r, monkeypatch):
-    """Step 5 of certificate._Ratio.boxes (the affine factors' remainders held at both ends of their
+    """Step 5 of certificate.Ratio.boxes (the affine factors' remainders held at both ends of their
     ranges, the largest of the 2^m bounds) on thin boxes that hold s_j = 0, where |s_j|^(q_j - 1)
     runs over nearly [0, 1]: the bound is never below R at points of the box (0 violations), step 5
     is in use on many of the boxes, and the check has teeth: held at the lower end only, the bound
@@ -987,7 +987,7 @@ def test_held_ends_bound_R_on_boxes_that_hold_a_zero(r, monkeypatch):
 
 @pytest.mark.parametrize("r", [4, 6])
 def test_R_is_affine_in_the_held_remainders_and_not_in_the_others(r):
-    """What step 5 rests on: F (certificate._Ratio.at, R with each split factor phi = a x + d) at a
+    """What step 5 rests on: F (certificate.Ratio.at, R with each split factor phi = a x + d) at a
     point of the product of a box near the zeros and the remainder ranges, with one remainder d moved
     over 17 values of its range and the rest held, lies on the chord between its values at the ends
     (to rounding, 1e-9 relative) for the slots AFFINE_SLOTS; for the other split factors (sig(s_i,
@@ -1002,7 +1002,6 @@ def test_R_is_affine_in_the_held_remainders_and_not_in_the_others(r):
     for obj, face, lo, hi in _held_boxes(r, 70 + r, boxes=24 if r < 6 else 8):
         with np.errstate(all="ignore"):
             F, phis, _ = obj.product(face, lo, hi)
-        n, d = len(lo), r - 1
         x = rng.uniform(lo, hi)
         base = {sl: rng.uniform(v.rng.lo, v.rng.hi) for sl, v in phis.items()}
         for sl, v in phis.items():
@@ -1082,15 +1081,15 @@ def _mp_R_converged(r, k, gains, s, a) -> float:
 
 def _zero_box_check(r, seed, boxes=12, points=128, exact=4):
     """(boxes whose bound is below R somewhere, mpmath values outside the point enclosure, boxes,
-    mpmath points): _Ratio.boxes on thin boxes (half-widths 1e-12..1e-1) of every face that touch or
+    mpmath points): Ratio.boxes on thin boxes (half-widths 1e-12..1e-1) of every face that touch or
     straddle s_j = 0 for one or two coordinates, at k = -1e-4/r and -0.99/r (near both ends of the
     admissible range) with gains log-uniform in 0.1..1e5, against R at 16 corners and random points
     whose zero coordinates are log-uniform down to 1e-300 or exactly 0: the guaranteed lower bounds
-    (_Ratio.points) at all of them, and mpmath (Hong's recursion, _mp_R_converged) at the ``exact``
+    (Ratio.points) at all of them, and mpmath (Hong's recursion, _mp_R_converged) at the ``exact``
     largest of each box, which must also lie in the points' enclosure."""
     from fractions import Fraction
 
-    from ftstab_mj.control.certificate import _Ratio
+    from ftstab_mj.control.certificate import Ratio
 
     rng = np.random.default_rng(seed)
     below = outside = seen = mps = 0
@@ -1098,7 +1097,7 @@ def _zero_box_check(r, seed, boxes=12, points=128, exact=4):
     for kf in (1e-4, 0.99):
         k = -kf / r
         gains = tuple(float(g) for g in 10.0 ** rng.uniform(-1, 5, r))
-        obj = _Ratio(Terms(r, k, gains), "c")
+        obj = Ratio(Terms(r, k, gains), "c")
         a = Fraction(float(obj.a.mid))
         for face in range(r):
             mid = rng.uniform(-1, 1, (boxes, d)) * 10.0 ** rng.uniform(-4, 0, (boxes, d))
@@ -1131,7 +1130,7 @@ def _zero_box_check(r, seed, boxes=12, points=128, exact=4):
 
 @pytest.mark.parametrize("r", [3, 4, 5, 6])
 def test_box_bounds_hold_on_boxes_at_the_zeros_against_mpmath(r, monkeypatch):
-    """The box bound (every step of _Ratio.boxes in use) on adversarial boxes at the zeros of the
+    """The box bound (every step of Ratio.boxes in use) on adversarial boxes at the zeros of the
     recursion variables (_zero_box_check: k near 0 and near -1/r, gains 0.1..1e5, zero coordinates
     down to 1e-300) is never below R, by its own guaranteed point values and by Hong's recursion in
     mpmath, which also lies in every point enclosure; and the check has teeth: with the mean-value
@@ -1147,7 +1146,7 @@ def test_box_bounds_hold_on_boxes_at_the_zeros_against_mpmath(r, monkeypatch):
 
 
 def _pair_cases(seed, n=150):
-    """Random pairs (coordinate x, remainder d = phi(x) - a x) as step 6 of _Ratio.boxes meets them:
+    """Random pairs (coordinate x, remainder d = phi(x) - a x) as step 6 of Ratio.boxes meets them:
     phi = sig(., e), e just below or above 1 (as e_i, q_i at k < 0) or far from it; X near, across or
     ending at 0 and away from it, widths 1e-8..1; gradient enclosures of either sign or holding 0,
     narrow or wide; centres anywhere in X and D. Returns a list of (X, e, a, D, Gx, Gd, cx, cd)."""
@@ -1204,13 +1203,13 @@ def _pair_sup_mp(X, e, a, Gx, Gd, cx, cd):
 
 def _pair_violations(cases):
     from ftstab_mj.control.certificate import _paired_term, _term
-    from ftstab_mj.control.interval import _up
+    from ftstab_mj.control.interval import round_up
 
     bad, tighter, loose = 0, 0, 0
     for X, e, a, D, Gx, Gd, cx, cd in cases:
         with np.errstate(all="ignore"):
             b = _paired_term(Gx, Gd, X.lo, X.hi, cx, a, D, cd, e, "sig")[0]
-            apart = _up(_term(Gx, X.lo, X.hi, cx) + _term(Gd, D.lo, D.hi, cd))[0]
+            apart = round_up(_term(Gx, X.lo, X.hi, cx) + _term(Gd, D.lo, D.hi, cd))[0]
         ref = _pair_sup_mp(X, e, a, Gx, Gd, cx, cd)
         bad += int(mp.mpf(b) < ref)
         # the gain, where the gradients are narrow (relative width < 1e-2) and the decoupled terms
@@ -1224,14 +1223,14 @@ def _pair_violations(cases):
 
 
 def test_paired_remainder_bound_holds_against_mpmath(monkeypatch):
-    """Step 6 of certificate._Ratio.boxes (_paired_term: a coordinate x and the remainder of its own
+    """Step 6 of certificate.Ratio.boxes (_paired_term: a coordinate x and the remainder of its own
     factor sig(x, e) bounded together) is never below the exact sup over x in X and the gradients in
     their enclosures of gx (x - cx) + gd (sig(x, e) - a x - cd), found in mpmath at the ends, at 0 and
     at the exact stationary points (600 random cases: exponents near and far from 1, boxes at and
     away from 0, gradients narrow and wide); where the gradients are narrow and the two decoupled
     terms of step 3 exceed the sup (1e-3 of their scale or more), it exceeds it by less than a tenth
     as much on most cases (measured: 50 of 50, median ratio 4e-4; where delta's extreme is at the
-    ends of X the decoupled terms are already exact and _Ratio._pair keeps them); and the check has teeth: without its second-order parts
+    ends of X the decoupled terms are already exact and Ratio._pair keeps them); and the check has teeth: without its second-order parts
     (the gradients' deviations from their midpoints) or with a remainder enclosure that misses the
     stationary point (its ends' hull only), it falls below the sup on some cases."""
     import ftstab_mj.control.certificate as cm

@@ -7,9 +7,10 @@ import pytest
 
 from ftstab_mj.control import (AdaptiveLaw, HongController, NominalLaw, RobustLaw, advance_phi_hat, certify,
                                theorem3_bounds)
-from ftstab_mj.disturbances import Signal
-from ftstab_mj.errors import ParameterError
-from ftstab_mj.ideal_chain import chain_transition, simulate_chain
+from ftstab_mj.plants.disturbances import Signal
+from ftstab_mj.config.errors import ParameterError
+from ftstab_mj.control.chain import chain_transition
+from ftstab_mj.simulation.ideal_chain import simulate_chain
 
 CERTIFIED = {2: (-0.2, (1.0, 2.0)), 3: (-0.1, (1.0, 1.7, 5.0))}  # the certificate's reference table
 

@@ -10,10 +10,11 @@ import pytest
 
 from conftest import run_cli
 from ftstab_mj.control import HongController, NominalLaw, certify
-from ftstab_mj.control.design import default_gain_max, design, nelder_mead
+from ftstab_mj.control.design import default_gain_max, design
+from ftstab_mj.control.nelder_mead import nelder_mead
 from ftstab_mj.control.linear_limit import linear_c
-from ftstab_mj.certificate_cache import cached_certify
-from ftstab_mj.ideal_chain import simulate_chain
+from ftstab_mj.metrics.certificate_cache import cached_certify
+from ftstab_mj.simulation.ideal_chain import simulate_chain
 from ftstab_mj.scenario import load_scenario, shipped_scenarios
 from test_control_certificate import K0_SETS, exact_k0
 
@@ -328,8 +329,8 @@ def test_the_designs_time_bound_is_the_guaranteed_one_a_run_reports(r, k, gains,
     import mpmath as mp
 
     from ftstab_mj.control.design import time_bound
-    from ftstab_mj.metrics import loop_certificate, time_bound as run_time_bound
-    from ftstab_mj.records import LoopInfo
+    from ftstab_mj.metrics.run_metrics import loop_certificate, time_bound as run_time_bound
+    from ftstab_mj.simulation.records import LoopInfo
 
     loop = LoopInfo("a", r, "nominal", {"r": r, "k": k, "gains": list(gains), "form": "full"}, {}, 0.0, 1.0, 1.0)
     cert = loop_certificate(loop)

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from ftstab_mj.control import HongController, gains_for_polynomial, is_hurwitz, nested_polynomial
-from ftstab_mj.errors import ParameterError
+from ftstab_mj.config.errors import ParameterError
 
 RS = range(1, 7)
 

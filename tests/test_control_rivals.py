@@ -5,15 +5,15 @@ formulas and orders. The laws run through the Law protocol (evaluate, advance, f
 import numpy as np
 import pytest
 
-from ftstab_mj import metrics
+from ftstab_mj.metrics import run_metrics as metrics
 from ftstab_mj.control import HongController, RobustLaw, gains_for_polynomial
 from ftstab_mj.control.hong import sig
 from ftstab_mj.control.implicit import sign_step, super_twisting_step
 from ftstab_mj.control.laws.levant import LevantNested, LevantQuasiContinuous
 from ftstab_mj.control.laws.linear import LinearLaw
 from ftstab_mj.control.laws.sliding_surface import PlestanAdaptive, SuperTwisting
-from ftstab_mj.errors import ParameterError
-from ftstab_mj.ideal_chain import chain_transition
+from ftstab_mj.config.errors import ParameterError
+from ftstab_mj.control.chain import chain_transition
 
 PERIODS = (1e-3, 2e-3, 4e-3, 8e-3)
 

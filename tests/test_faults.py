@@ -13,9 +13,9 @@ from ftstab_mj.logs.reader import read_log
 from ftstab_mj.logs.rerun_sink import write_rrd
 from ftstab_mj.logs.scene import model_shapes
 from ftstab_mj.scenario.run import verify_log
-from ftstab_mj.metrics import compute_metrics
+from ftstab_mj.metrics.run_metrics import compute_metrics
 from ftstab_mj.plants import make_plant
-from ftstab_mj.records import COMPLETED
+from ftstab_mj.simulation.records import COMPLETED
 from ftstab_mj.scenario import load_scenario
 from ftstab_mj.scenario.run import run_scenario
 from synthetic_runs import synthetic_run, write_run

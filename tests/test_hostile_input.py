@@ -9,7 +9,7 @@ import pytest
 
 from conftest import ROOT, run_args
 from ftstab_mj.cli import main
-from ftstab_mj.disturbances import Signal
+from ftstab_mj.plants.disturbances import Signal
 from ftstab_mj.scenario import load_scenario
 
 R2 = ROOT / "scenarios" / "cart_r2_robust.toml"
@@ -89,7 +89,7 @@ def test_a_step_may_step_down_an_actuator_losing_half_its_gain():
 def test_the_limits_hold_exactly_at_their_values():
     """1e7 samples and 1e6 steps per period are allowed; one more is refused (the limits are the
     stated numbers, not approximations of them). Loader only: nothing runs."""
-    from ftstab_mj.errors import ScenarioError
+    from ftstab_mj.config.errors import ScenarioError
 
     load_scenario(R2, ["sim.duration=10000"])  # 1e7 samples of 1 ms
     with pytest.raises(ScenarioError, match="at most 1e7 control samples"):
@@ -116,7 +116,7 @@ def test_theorem3_bounds_of_absurd_but_finite_parameters_are_infinite_not_an_ove
 def test_a_run_out_of_memory_mid_way_closes_its_logs_as_failed_in_one_line(tmp_path, capsys, monkeypatch):
     """Point 2's other half: a MemoryError in the third batch (as a machine short of memory gives)
     ends `ftstab run` with exit 1, one line, and logs that hold the first batches and say "failed"."""
-    from ftstab_mj import sim
+    from ftstab_mj.simulation import run_loop as sim
     from ftstab_mj.logs.reader import read_log
 
     advance, calls = sim.Simulation.advance, []
@@ -139,7 +139,7 @@ def test_a_run_out_of_memory_mid_way_closes_its_logs_as_failed_in_one_line(tmp_p
 def test_a_structure_problem_is_named_by_its_whole_key_path_quoted_where_toml_needs_it():
     """structure_problem keeps a value's place as (parent, key) and writes its key path only for the value at
     fault: the path is keypath's, array indices and quoted keys included, at any depth."""
-    from ftstab_mj.validate import MAX_DEPTH, structure_problem
+    from ftstab_mj.config.validate import MAX_DEPTH, structure_problem
 
     assert structure_problem({"a": {"b": [1, 2, {"c d": 2 ** 70}]}})[0] == 'a.b[2]."c d"'
     deep = node = {}

@@ -15,8 +15,8 @@ import numpy as np
 import pytest
 
 from conftest import ROOT
-from ftstab_mj import native
-from ftstab_mj.records import INTERRUPTED, LOOP_FIELDS
+from ftstab_mj.simulation import native
+from ftstab_mj.simulation.records import INTERRUPTED, LOOP_FIELDS
 from ftstab_mj.scenario import load_scenario
 from ftstab_mj.scenario.run import run_scenario
 

@@ -40,7 +40,7 @@ def label(sig):
 
 @pytest.mark.parametrize("entry, spec", [
     ("script", "SIGINT@import:ftstab_mj.cli"),  # the script imported the CLI before any handler of ours
-    ("module", "SIGINT@import:ftstab_mj.interrupts"),  # the entry's first import
+    ("module", "SIGINT@import:ftstab_mj.simulation.interrupts"),  # the entry's first import
     ("module", "SIGTERM@import:numpy"),  # inside a C extension's import
     ("script", "SIGHUP@import:mujoco"),
 ])

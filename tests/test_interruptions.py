@@ -10,7 +10,7 @@ import time
 import numpy as np
 import pytest
 
-from conftest import ROOT, run_cli, start_cli, wait_for_samples
+from conftest import run_cli, start_cli, wait_for_samples
 from ftstab_mj.cli import main
 from ftstab_mj.logs.reader import read_log
 
@@ -189,7 +189,7 @@ def test_a_signal_at_any_moment_leaves_logs_whose_metrics_are_the_replayed_ones(
     before it, once the try has reported that moment, and before the try goes past the next one (a
     faster try waits there). So a signal falls between the same two moments whatever the load: the
     tries in the batches' span are interrupted by construction."""
-    from ftstab_mj.metrics import compute_metrics
+    from ftstab_mj.metrics.run_metrics import compute_metrics
 
     moments = Moments(monkeypatch)
     argv = ["run", scenario, "--out", str(tmp_path / "o"), "--set", "sim.duration=1.5", "--json"]

@@ -3,7 +3,7 @@ operation's result encloses the exact value (mpmath at 80 digits) at points of i
 intervals, on random intervals mixing zeros of both signs, subnormals, the largest floats and
 infinite (unbounded) ends; and the one platform assumption the power enclosure makes: np.power
 (the SIMD array path and the scalar one) errs by less than the margin every power bound is widened
-by (interval._POW_ULPS - 1 ulps: _dn/_up move a float at least that far)."""
+by (interval._POW_ULPS - 1 ulps: round_down/round_up move a float at least that far)."""
 
 import mpmath as mp
 import numpy as np

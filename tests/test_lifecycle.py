@@ -12,14 +12,14 @@ from conftest import ROOT
 from ftstab_mj.plants.base import Plant
 from ftstab_mj.scenario import load_scenario
 from ftstab_mj.scenario.run import run_scenario
-from ftstab_mj.sim import simulate
+from ftstab_mj.simulation.run_loop import simulate
 
 # What logs/ may import: itself and what lies below it, i.e. the record contract and pure functions
 # of records (metrics, control: the Rerun view draws Theorem 1's envelope), errors, the callback slot
 # its viewers clear while compiling a model, the package version. Above it, never: the run loop
 # (sim, native, plants), the scenario runner and loader, sweeps, the CLI.
-BELOW_LOGS = ("ftstab_mj.logs", "ftstab_mj.records", "ftstab_mj.metrics", "ftstab_mj.control", "ftstab_mj.errors",
-              "ftstab_mj.callback")
+BELOW_LOGS = ("ftstab_mj.logs", "ftstab_mj.simulation.records", "ftstab_mj.metrics.run_metrics", "ftstab_mj.control", "ftstab_mj.config.errors",
+              "ftstab_mj.plants.callback")
 
 
 def test_loading_and_running_a_scenario_compiles_the_plant_once(monkeypatch):

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from ftstab_mj.control import HongController, certify
-from ftstab_mj.control.certificate import _Ratio, _zero_set_witness, onto_zero_set, zero_set_starts
+from ftstab_mj.control.certificate import Ratio, _zero_set_witness, onto_zero_set, zero_set_starts
 from ftstab_mj.control.hong_terms import Terms
 from ftstab_mj.control.linear_limit import limit_c, limit_forms, linear_c
 
@@ -109,7 +109,7 @@ def test_every_choice_is_the_limit_of_the_certificates_own_ratio_on_its_sets(gai
                     s[0, i - 1] = 0.0
                 if i in f.z_zero:
                     onto_zero_set(t, s, i)
-            gaps.append(abs(_Ratio(t, "c").floats(s)[0] + f.c) / abs(f.c))
+            gaps.append(abs(Ratio(t, "c").floats(s)[0] + f.c) / abs(f.c))
         assert gaps[0] <= 2 * _first_order(r, -1e-5, gains), (f.z_zero, f.s_zero, gaps)
         assert gaps[1] < gaps[0] / 3, (f.z_zero, f.s_zero, gaps)
 
@@ -127,7 +127,7 @@ def test_the_limit_is_the_controllers_own_maximum_on_the_zero_set(gains):
     gaps = []
     for k in (-1e-5, -1e-6):
         t = Terms(r, k, gains)
-        s = zero_set_starts(_Ratio(t, "c"))[i]
+        s = zero_set_starts(Ratio(t, "c"))[i]
         z = np.stack(t.z_of([s[:, j] for j in range(r)])[0], axis=-1)
         assert np.all(np.abs(z[:, i - 1]) <= 1e-15 * np.abs(z).max())  # on the set up to rounding
         z[:, i - 1] = 0.0
@@ -169,7 +169,7 @@ def test_the_joint_golden_section_is_each_sets_own_bit_for_bit(r, k, gains):
     """zero_set_starts runs the golden sections of every zero set (and both signs) in one array, both
     trial points in one evaluation; the float R is elementwise in the states, so each set's start is
     exactly the one its own section gives (no tolerance: the same floats)."""
-    obj = _Ratio(Terms(r, k, gains), "c")
+    obj = Ratio(Terms(r, k, gains), "c")
     joint = zero_set_starts(obj)
     forms = limit_forms(list(gains), single=True)
     assert sorted(joint) == sorted(f.z_zero[0] for f in forms) == list(range(2, r))
@@ -193,7 +193,7 @@ def test_the_zero_set_search_reaches_the_limit_value():
     gap (2.8 %) of -lim c, so c <= ~0.022 there (measured -0.02167; from sampled states alone the
     same search reached -0.084, i.e. claimed only c <= 0.084)."""
     k = -0.0005
-    lo, z = _zero_set_witness(_Ratio(Terms(6, k, G6_LIMIT), "c"), 0)
+    lo, z = _zero_set_witness(Ratio(Terms(6, k, G6_LIMIT), "c"), 0)
     lim = limit_c(G6_LIMIT).c
     assert abs(lo + lim) <= 2 * _first_order(6, k, G6_LIMIT) * lim, (lo, lim)
     assert (z[1:-1] == 0.0).any()

@@ -10,11 +10,11 @@ import pytest
 from mcap.reader import make_reader
 
 from conftest import run_cli
-from ftstab_mj.errors import LogError
+from ftstab_mj.config.errors import LogError
 from ftstab_mj.logs import McapSink
 from ftstab_mj.logs.reader import DamagedLog, read_log
-from ftstab_mj.metrics import compute_metrics
-from ftstab_mj.records import COMPLETED, LOOP_FIELDS, RunInfo
+from ftstab_mj.metrics.run_metrics import compute_metrics
+from ftstab_mj.simulation.records import COMPLETED, LOOP_FIELDS, RunInfo
 from synthetic_runs import synthetic_run, write_run
 
 OLD_JSON_LOG = Path(__file__).parent / "data" / "json_log_v0.1.mcap"  # written by ftstab_mj 0.1 (JSON loops)
@@ -223,7 +223,7 @@ def test_a_run_info_with_absurd_sizes_is_one_line(tmp_path):
 @pytest.mark.parametrize("model", ["cart", "cart_integrating", "arm"])
 def test_the_models_our_runs_log_pass_the_untrusted_model_check(model):
     # The check must refuse what names files, not what our own plants write (e.g. <light dir=...>).
-    from ftstab_mj.callback import control_callback
+    from ftstab_mj.plants.callback import control_callback
     from ftstab_mj.logs.scene import check_untrusted_model, model_shapes
     from ftstab_mj.plants import make_plant
 

@@ -8,13 +8,13 @@ import pytest
 
 from conftest import record_run, run_cli
 from ftstab_mj.control import HongController, NominalLaw, RobustLaw
-from ftstab_mj.disturbances import Signal
-from ftstab_mj.errors import CallbackError
+from ftstab_mj.plants.disturbances import Signal
+from ftstab_mj.config.errors import CallbackError
 from ftstab_mj.logs import McapSink, RerunSink
 from ftstab_mj.logs.reader import read_log
 from ftstab_mj.plants import make_plant
-from ftstab_mj.records import DIVERGED, FAILED, INTERRUPTED
-from ftstab_mj.sim import LoopSpec
+from ftstab_mj.simulation.records import DIVERGED, FAILED, INTERRUPTED
+from ftstab_mj.scenario import LoopSpec
 
 HONG = HongController(2, -0.2, (1.0, 2.0))
 

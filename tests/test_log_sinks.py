@@ -9,11 +9,13 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 
-from ftstab_mj.disturbances import Signal
-from ftstab_mj.errors import LogError
+import ftstab_mj
+
+from ftstab_mj.plants.disturbances import Signal
+from ftstab_mj.config.errors import LogError
 from ftstab_mj.logs import McapSink, RerunSink
-from ftstab_mj.metrics import compute_metrics
-from ftstab_mj.records import COMPLETED, DIVERGED, LOOP_FIELDS, RunInfo, SampleBatch
+from ftstab_mj.metrics.run_metrics import compute_metrics
+from ftstab_mj.simulation.records import COMPLETED, DIVERGED, LOOP_FIELDS, RunInfo, SampleBatch
 from synthetic_runs import batches, synthetic_run, write_run
 
 
@@ -64,6 +66,7 @@ def test_mcap_is_readable_by_the_plain_mcap_reader(tmp_path, run):
     for topic, msgs in _decoded(path).items():  # every message decodes (a failure raises)
         got[topic] = [(m, d) for _, m, d in msgs]
     assert meta["versions"]["mujoco"] == mujoco.__version__
+    assert meta["versions"]["log_format"] == str(ftstab_mj.LOG_FORMAT)  # readers branch on it
     assert summary.statistics.message_count == sum(len(v) for v in got.values())
     samples = got["/loop/cart"]
     arrays = loops["cart"]
@@ -230,7 +233,7 @@ def test_rerun_series_are_grouped_by_plot_with_min_max_for_the_control(robust_rr
 
 
 def test_rerun_V1_plot_is_log10_with_theorem_1_envelope_above_the_samples(robust_rrd):
-    from ftstab_mj.metrics import loop_certificate
+    from ftstab_mj.metrics.run_metrics import loop_certificate
 
     path, info, loops, pos, metrics = robust_rrd
     rows, cols = _rrd(path)
@@ -351,7 +354,7 @@ def test_rerun_names_the_envelope_what_the_report_calls_it(robust_rrd, tmp_path)
     """The envelope's series name and the T(z0) note say "continuous-time guarantee" only where the
     metrics say bound_applies (the report's words, metrics.envelope_kind); a robust law whose
     assumed phibar (0.2) is below the true disturbance (0.5) gets "not a guarantee" and why."""
-    from ftstab_mj.metrics import envelope_kind
+    from ftstab_mj.metrics.run_metrics import envelope_kind
 
     path, info, loops, pos, metrics = robust_rrd
     series, note = _envelope_names(path)

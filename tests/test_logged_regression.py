@@ -3,7 +3,7 @@
 For each scenario: ``ftstab run NAME --set sim.duration=DURATION`` writes its logs, ``ftstab check``
 compares the metrics recomputed from the MCAP log with tests/expected/NAME.toml, and
 ``ftstab replay --verify`` re-runs the scenario recorded in the log and finds it bit-identical.
-The tolerances of the pinned files are the default ones of ftstab_mj/expectations.py (timings in
+The tolerances of the pinned files are the default ones of ftstab_mj/metrics/expectations.py (timings in
 control periods, phi_hat from the adaptation rate, rtol for chattering amplitudes: see each file's
 header). The CLI is called in-process (``ftstab_mj.cli.main``) to spare a Python start per call.
 
@@ -49,8 +49,8 @@ def test_verify_fails_when_a_logged_sample_is_altered(tmp_path, capsys):
 
     from ftstab_mj.logs import McapSink
     from ftstab_mj.logs.reader import read_log
-    from ftstab_mj.metrics import compute_metrics
-    from ftstab_mj.records import SampleBatch
+    from ftstab_mj.metrics.run_metrics import compute_metrics
+    from ftstab_mj.simulation.records import SampleBatch
 
     name = "cart_r2_adaptive"
     assert main(["run", name, "--set", "sim.duration=0.5", "--out", str(tmp_path), "--json"]) == 0

@@ -14,9 +14,9 @@ import math
 import numpy as np
 import pytest
 
-from ftstab_mj.errors import ParameterError
-from ftstab_mj.loop_stages import ActuatorModel, LevantDifferentiator, SensorModel
-from ftstab_mj.loop_stages.levant import nonrecursive_lambdas
+from ftstab_mj.config.errors import ParameterError
+from ftstab_mj.simulation.stages import ActuatorModel, LevantDifferentiator, SensorModel
+from ftstab_mj.simulation.stages.differentiator import nonrecursive_lambdas
 
 L = 2.0  # f = sin t: |f^(n+1)| <= 1 < L
 

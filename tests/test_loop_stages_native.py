@@ -1,4 +1,4 @@
-"""The C twin of the loop stages (kernel.c ft_stage, ftstab_mj/native/stages.py) against the NumPy
+"""The C twin of the loop stages (kernel.c ft_stage, ftstab_mj/simulation/native/stages.py) against the NumPy
 pipeline (loop_stages/pipeline.py), over every stage and option, sample for sample.
 
 Tolerance 1e-12 relative (measured here: bit-identical): both run the same operations in the same order; NumPy's SIMD pow and
@@ -11,9 +11,9 @@ import itertools
 import numpy as np
 import pytest
 
-from ftstab_mj import native
-from ftstab_mj.loop_stages import ActuatorModel, LevantDifferentiator, SensorModel
-from ftstab_mj.loop_stages.pipeline import LoopStages
+from ftstab_mj.simulation import native
+from ftstab_mj.simulation.stages import ActuatorModel, LevantDifferentiator, SensorModel
+from ftstab_mj.simulation.stages.pipeline import LoopStages
 
 pytestmark = pytest.mark.skipif(not native.available(), reason=native.UNAVAILABLE_REASON or "")
 
@@ -37,7 +37,7 @@ ACTUATORS = {
                          [(r, s, nf, a) for r, s, nf, a in itertools.product((2, 3), SENSORS, (0, 1), ACTUATORS)
                           if nf == 0 or s.startswith("position")])  # the filter order is the observer's
 def test_native_stages_equal_the_numpy_pipeline(r, sensor, filter_order, actuator):
-    from ftstab_mj.native import stages as native_stages
+    from ftstab_mj.simulation.native import stages as native_stages
 
     sens = SENSORS[sensor](r)
     observer = LevantDifferentiator(r - 1 + (sensor == "position_gaussian"), 5.0, filter_order) \

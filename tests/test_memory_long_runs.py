@@ -13,10 +13,10 @@ import pytest
 from mcap.reader import make_reader
 
 from ftstab_mj.logs.mcap_file import McapFile
-from ftstab_mj.metrics import MetricsStream
-from ftstab_mj.records import MetricSettings
+from ftstab_mj.metrics.run_metrics import MetricsStream
+from ftstab_mj.simulation.records import MetricSettings
 from ftstab_mj.logs import rerun_sink
-from ftstab_mj.logs.rerun_sink import FOOTER_MAX_CHUNKS, RerunSink
+from ftstab_mj.logs.rerun_sink import RerunSink
 from ftstab_mj.scenario import find_scenario, load_scenario
 from ftstab_mj.scenario.run import run_scenario
 

@@ -6,9 +6,10 @@ import numpy as np
 import pytest
 
 from ftstab_mj.control import HongController, certify, theorem3_bounds
-from ftstab_mj.disturbances import Signal
-from ftstab_mj.metrics import bound_applies, compute_metrics, format_table, settle_time
-from ftstab_mj.records import COMPLETED, DIVERGED, LOOP_FIELDS, LoopInfo, MetricSettings, RunInfo
+from ftstab_mj.plants.disturbances import Signal
+from ftstab_mj.metrics.run_metrics import bound_applies, compute_metrics, format_table
+from metrics_reference import settle_time
+from ftstab_mj.simulation.records import COMPLETED, DIVERGED, LOOP_FIELDS, LoopInfo, MetricSettings, RunInfo
 from synthetic_runs import ADAPTIVE, HONG2, synthetic_run
 
 

@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from ftstab_mj.metrics import band_rms, chattering, compute_metrics, du_dt_variance, zero_crossing_rate
-from ftstab_mj.records import COMPLETED, LOOP_FIELDS, LoopInfo, MetricSettings, RunInfo
+from ftstab_mj.metrics.run_metrics import band_rms, chattering, compute_metrics, du_dt_variance, zero_crossing_rate
+from ftstab_mj.simulation.records import COMPLETED, LOOP_FIELDS, LoopInfo, MetricSettings, RunInfo
 from synthetic_runs import HONG2
 
 

@@ -1,4 +1,4 @@
-"""Metrics streamed as the batches come (ftstab_mj.metrics.MetricsStream) are the metrics of the whole
+"""Metrics streamed as the batches come (ftstab_mj.metrics.run_metrics.MetricsStream) are the metrics of the whole
 arrays, and a run holds no sample unless asked (flat memory)."""
 
 import tracemalloc
@@ -8,10 +8,9 @@ import pytest
 
 from ftstab_mj.logs import McapSink
 from ftstab_mj.logs.reader import read_log, stream_metrics
-from ftstab_mj.metrics import (MetricsStream, _BlockSum, _finite_or_nan, _num, _Ring, band_rms, chattering, compute_metrics,
-                               du_dt_variance, effort, eps_ball, estimation_error, final_abs_max, saturated_time, settle_time,
-                               theorem3_check, workspace_left, zero_crossing_rate)
-from ftstab_mj.records import LOOP_FIELDS
+from ftstab_mj.metrics.run_metrics import (MetricsStream, _BlockSum, _finite_or_nan, _num, _Ring, band_rms, chattering, compute_metrics, du_dt_variance, saturated_time, theorem3_check, workspace_left, zero_crossing_rate)
+from metrics_reference import effort, eps_ball, estimation_error, final_abs_max, settle_time
+from ftstab_mj.simulation.records import LOOP_FIELDS
 from ftstab_mj.scenario import load_scenario, shipped_scenarios
 from ftstab_mj.scenario.run import run_scenario
 
@@ -83,9 +82,9 @@ def test_an_infinite_final_window_max_is_refused_in_one_line_that_says_what_to_w
     """inf has no JSON form (a log records the settings), so it is refused, and the line names the
     key and the finite value that lifts the cap; that value is no cap: the window starts where the
     uncapped one (None, as logs before the key replay) does, up to 1e7 samples of up to 100 s."""
-    from ftstab_mj.errors import ScenarioError
-    from ftstab_mj.metrics import final_window_start
-    from ftstab_mj.records import MetricSettings
+    from ftstab_mj.config.errors import ScenarioError
+    from ftstab_mj.metrics.run_metrics import final_window_start
+    from ftstab_mj.simulation.records import MetricSettings
 
     with pytest.raises(ScenarioError) as exc:
         load_scenario(dict(SHIPPED)["cart_r2_nominal"], ["metrics.final_window_max=inf"])

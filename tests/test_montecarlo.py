@@ -7,12 +7,10 @@ import numpy as np
 import pytest
 from conftest import run_cli
 
-from ftstab_mj import metrics as mt
-from ftstab_mj import montecarlo as mc
-from ftstab_mj.ideal_chain import simulate_chain
+from ftstab_mj.metrics import run_metrics as mt
+from ftstab_mj.studies import montecarlo as mc
+from ftstab_mj.simulation.ideal_chain import simulate_chain
 from ftstab_mj.scenario import find_scenario, load_scenario
-from ftstab_mj.sweep.runner import ScenarioTask
-from ftstab_mj.tomlfile import read_toml
 
 
 def test_vectorised_settle_times_equal_the_metric_of_each_column():

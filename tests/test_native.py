@@ -21,10 +21,10 @@ import os
 import numpy as np
 import pytest
 
-from ftstab_mj import native
+from ftstab_mj.simulation import native
 from ftstab_mj.control import AdaptiveLaw, HongController, NominalLaw, RobustLaw, advance_phi_hat
-from ftstab_mj.disturbances import Signal
-from ftstab_mj.ideal_chain import simulate_chain
+from ftstab_mj.plants.disturbances import Signal
+from ftstab_mj.simulation.ideal_chain import simulate_chain
 
 TOL = 1e-12
 

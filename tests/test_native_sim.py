@@ -1,4 +1,4 @@
-"""The native control callback (ftstab_mj/native/run.py) against the Python run loop (sim.py).
+"""The native control callback (ftstab_mj/simulation/native/run.py) against the Python run loop (sim.py).
 
 Same scenario, both paths: every recorded field of every sample and the body poses agree to
 1e-12 (relative to max(1, |value|); the only differences are NumPy's SIMD pow vs libm's pow and
@@ -12,14 +12,16 @@ import mujoco
 import numpy as np
 import pytest
 
-from ftstab_mj import native
+from ftstab_mj.simulation import native
 from ftstab_mj.control import AdaptiveLaw, HongController, NominalLaw, RobustLaw
-from ftstab_mj.disturbances import Signal
-from ftstab_mj.native import run as native_run
+from ftstab_mj.plants.disturbances import Signal
+from ftstab_mj.simulation.native import run as native_run
 from ftstab_mj.plants import make_plant
 from ftstab_mj.plants.base import Plant
-from ftstab_mj.records import DIVERGED, LOOP_FIELDS
-from ftstab_mj.sim import LoopSpec, Simulation, simulate
+from ftstab_mj.simulation.records import DIVERGED, LOOP_FIELDS
+from ftstab_mj.scenario import LoopSpec
+
+from ftstab_mj.simulation.run_loop import Simulation, simulate
 
 TOL = 1e-12
 pytestmark = pytest.mark.skipif(not native.available(), reason=f"native kernel: {native.UNAVAILABLE_REASON}")

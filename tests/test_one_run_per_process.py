@@ -21,16 +21,17 @@ import pytest
 
 from conftest import ROOT, run_cli
 from test_sweep_cli import results, small_sweep
-from ftstab_mj import native
-from ftstab_mj.callback import CallbackBusy, control_callback
+from ftstab_mj.simulation import native
+from ftstab_mj.plants.callback import CallbackBusy, control_callback
 from ftstab_mj.control import HongController, RobustLaw
-from ftstab_mj.disturbances import Signal
+from ftstab_mj.plants.disturbances import Signal
 from ftstab_mj.plants import make_plant
-from ftstab_mj.sim import LoopSpec, Simulation
-from ftstab_mj.sweep.engine import guarded
-from ftstab_mj.sweep.runner import ScenarioTask
-from ftstab_mj.sweep.table import read_table
-from ftstab_mj.tomlfile import read_toml
+from ftstab_mj.scenario import LoopSpec
+from ftstab_mj.simulation.run_loop import Simulation
+from ftstab_mj.studies.sweep.engine import guarded
+from ftstab_mj.studies.sweep.row import ScenarioTask
+from ftstab_mj.studies.sweep.table import read_table
+from ftstab_mj.config.tomlfile import read_toml
 
 LAW = RobustLaw(HongController(2, -0.2, (1.0, 2.0)), phibar=0.5, gamma_m=0.8)
 
@@ -99,7 +100,7 @@ def test_the_native_kernel_serves_each_batch_the_run_of_the_thread_that_steps_it
     """The kernel's active run is per thread (the callback runs in the thread that called mj_step):
     a run left active in another thread (one activated there and never finished) does not take
     this thread's batch, and an activation interrupted before its batch stepped leaves nothing behind."""
-    from ftstab_mj.native.run import FtRun, _lib
+    from ftstab_mj.simulation.native.run import FtRun, _lib
 
     lib = _lib()
     elsewhere = FtRun()  # zeroed: a callback serving it would read through NULL pointers

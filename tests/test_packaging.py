@@ -8,17 +8,31 @@ import ast
 import importlib.metadata
 import os
 import re
+import shutil
 import subprocess
 import sys
 import tomllib
 import zipfile
+from pathlib import Path
 
 from conftest import ROOT
 
 
+def _tracked_copy(dest: Path) -> Path:
+    """The checkout's tracked files copied to ``dest``: a build there leaves the checkout untouched
+    (setuptools writes build/ and *.egg-info/ beside the sources it builds)."""
+    files = subprocess.run(["git", "ls-files", "-z"], cwd=ROOT, capture_output=True, check=True).stdout
+    for name in filter(None, files.decode().split("\0")):
+        target = dest / name
+        target.parent.mkdir(parents=True, exist_ok=True)
+        shutil.copy2(ROOT / name, target)
+    return dest
+
+
 def test_wheel_carries_models_and_scenarios_and_runs_without_the_source_tree(tmp_path):
+    source = _tracked_copy(tmp_path / "source")
     build = subprocess.run(
-        [sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "-v", "-w", str(tmp_path), str(ROOT)],
+        [sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "-v", "-w", str(tmp_path), str(source)],
         capture_output=True, text=True, timeout=600, cwd=tmp_path)
     assert build.returncode == 0, build.stderr[-2000:]
     # the metadata is in a form setuptools keeps accepting (the license table stops on 2027-02-18)
@@ -42,7 +56,7 @@ def test_wheel_carries_models_and_scenarios_and_runs_without_the_source_tree(tmp
     assert res.returncode == 0, res.stderr[-2000:]
     assert (elsewhere / "runs" / "cart_r2_robust.mcap").stat().st_size > 0
     # The command ran from the unpacked wheel, not from the checkout.
-    probe = subprocess.run([sys.executable, "-c", "import ftstab_mj.resources as r; print(r.data_dir('models'))"],
+    probe = subprocess.run([sys.executable, "-c", "import ftstab_mj.config.resources as r; print(r.data_dir('models'))"],
                            capture_output=True, text=True, cwd=elsewhere, env=env)
     assert probe.stdout.strip().startswith(str(site))
 
@@ -71,3 +85,16 @@ def test_every_imported_package_is_declared_and_the_license_is_an_spdx_expressio
     missing = {m: dists.get(m) for m in third_party
                if not {_requirement_name(d) for d in dists.get(m, [m])} & declared}
     assert not missing, f"imported but not in pyproject's dependencies (module: distributions): {missing}"
+
+
+def test_the_version_is_written_once_and_the_changelog_names_it():
+    """pyproject reads the version from ftstab_mj.__version__; the CHANGELOG's newest entry is that
+    version (a format change bumps both); the LICENSE is the license the metadata declares."""
+    import ftstab_mj
+
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text())
+    assert "version" not in project["project"] and "version" in project["project"]["dynamic"]
+    assert project["tool"]["setuptools"]["dynamic"]["version"] == {"attr": "ftstab_mj.__version__"}
+    first = next(line for line in (ROOT / "CHANGELOG.md").read_text().splitlines() if line.startswith("## "))
+    assert first.split()[1] == ftstab_mj.__version__
+    assert project["project"]["license"] == "MIT" and (ROOT / "LICENSE").read_text().startswith("MIT License")

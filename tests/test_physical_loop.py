@@ -10,17 +10,16 @@ reduced chain, homogeneous with weights p_i = 1 + (i - 1) k, gives z_i = O(eps^(
 For r = 2, k = -0.2: z_1 ~ eps^0.625, z_2 ~ eps^0.5.
 """
 
-import math
 
 import numpy as np
 import pytest
 
-from ftstab_mj import native
+from ftstab_mj.simulation import native
 from ftstab_mj.plants import make_plant
-from ftstab_mj.records import LOOP_FIELDS, STAGE_FIELDS
+from ftstab_mj.simulation.records import LOOP_FIELDS, STAGE_FIELDS
 from ftstab_mj.scenario import SCENARIO_DIR, load_scenario, shipped_scenarios
 from ftstab_mj.scenario.run import run_scenario
-from ftstab_mj.sim import Simulation, simulate
+from ftstab_mj.simulation.run_loop import Simulation, simulate
 
 ROBUST = SCENARIO_DIR / "cart_r2_robust.toml"
 R3 = SCENARIO_DIR / "cart_r3_robust.toml"

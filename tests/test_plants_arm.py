@@ -5,12 +5,14 @@ import numpy as np
 import pytest
 
 from ftstab_mj.control import HongController, RobustLaw, certify
-from ftstab_mj.disturbances import Signal
-from ftstab_mj.errors import ParameterError
-from ftstab_mj.metrics import compute_metrics, workspace_left
+from ftstab_mj.plants.disturbances import Signal
+from ftstab_mj.config.errors import ParameterError
+from ftstab_mj.metrics.run_metrics import compute_metrics, workspace_left
 from ftstab_mj.plants import make_plant
 from ftstab_mj.plants.chain_bounds import max_abs_quadratic
-from ftstab_mj.sim import LoopSpec, simulate
+from ftstab_mj.scenario import LoopSpec
+
+from ftstab_mj.simulation.run_loop import simulate
 
 HONG = HongController(2, -0.2, (1.0, 2.0))
 PHIS = [Signal("sine", amplitude=0.3, freq=0.5), Signal("random", amplitude=0.1, freq=2.0, seed=1)]  # N m

@@ -22,10 +22,12 @@ import numpy as np
 import pytest
 
 from ftstab_mj.control import AdaptiveLaw, HongController, RobustLaw, certify, theorem3_bounds
-from ftstab_mj.disturbances import Signal
-from ftstab_mj.ideal_chain import simulate_chain
+from ftstab_mj.plants.disturbances import Signal
+from ftstab_mj.simulation.ideal_chain import simulate_chain
 from ftstab_mj.plants import make_plant
-from ftstab_mj.sim import LoopSpec, simulate
+from ftstab_mj.scenario import LoopSpec
+
+from ftstab_mj.simulation.run_loop import simulate
 
 HONG = {2: HongController(2, -0.2, (1.0, 2.0)), 3: HongController(3, -0.1, (1.0, 1.7, 5.0))}
 Z0 = {2: (1.0, 0.0), 3: (1.0, 0.0, 0.0)}

@@ -5,10 +5,12 @@ import numpy as np
 import pytest
 
 from ftstab_mj.control import HongController, RobustLaw
-from ftstab_mj.disturbances import Signal
+from ftstab_mj.plants.disturbances import Signal
 from ftstab_mj.plants import make_plant
 from ftstab_mj.scenario import find_scenario, load_scenario
-from ftstab_mj.sim import LoopSpec, simulate
+from ftstab_mj.scenario import LoopSpec
+
+from ftstab_mj.simulation.run_loop import simulate
 
 HONG3 = HongController(3, -0.1, (1.0, 1.7, 5.0))
 HONG2 = HongController(2, -0.2, (1.0, 2.0))

@@ -5,7 +5,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from ftstab_mj.errors import ParameterError
+from ftstab_mj.config.errors import ParameterError
 from ftstab_mj.plants import make_plant
 from ftstab_mj.plants.flexible_joint import Interval, cos, phi_of_z, sin
 
@@ -187,7 +187,7 @@ def test_chain_identity_in_a_logged_run(name, tol, tmp_path):
 def test_a_user_model_driving_a_joint_through_a_spring_is_refused_in_one_line():
     """The flexible joint's MJCF as a user model: its actuator reaches the link only through the spring,
     which a user model's loop (r = 2 or 3) cannot be; the refusal names the key and the spring."""
-    from ftstab_mj.resources import data_dir
+    from ftstab_mj.config.resources import data_dir
 
     with pytest.raises(ParameterError) as err:
         make_plant(str(data_dir("models") / "flexible_joint.xml"),

@@ -1,6 +1,6 @@
 """The ideal-chain plant (plants/ideal.py): the run loop on the exact chain, any r = 1..6.
 
-Reference: ftstab_mj.ideal_chain.simulate_chain (the NumPy loop the MuJoCo plants are checked
+Reference: ftstab_mj.simulation.ideal_chain.simulate_chain (the NumPy loop the MuJoCo plants are checked
 against) with substeps = physics steps per period. Both apply z <- z Phi^T + w G per physics step
 with the same w = phi + gamma u, so they give the same bits; with a set point the plant integrates
 ref + z_1, so z_1 differs by the rounding of that sum (an ulp of ref per step).
@@ -12,13 +12,13 @@ from conftest import run_cli
 
 from ftstab_mj.control import HongController, NominalLaw, RobustLaw
 from ftstab_mj.control.hong import gains_for_polynomial
-from ftstab_mj.disturbances import Signal
-from ftstab_mj.errors import ParameterError
-from ftstab_mj.ideal_chain import simulate_chain
-from ftstab_mj.native import NativeUnavailable
+from ftstab_mj.plants.disturbances import Signal
+from ftstab_mj.config.errors import ParameterError
+from ftstab_mj.simulation.ideal_chain import simulate_chain
+from ftstab_mj.simulation.native import NativeUnavailable
 from ftstab_mj.plants import make_plant
 from ftstab_mj.scenario.schema import LoopSpec
-from ftstab_mj.sim import Simulation, simulate
+from ftstab_mj.simulation.run_loop import Simulation, simulate
 
 def _law(r, robust=False):
     """Hong's controller with k = -0.5 / (r + 1) and the gains whose nested polynomial is (s + 2)^r."""

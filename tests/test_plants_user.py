@@ -17,7 +17,7 @@ from test_plants_chain import native_and_python_agree
 
 from ftstab_mj.control import HongController, RobustLaw
 from ftstab_mj.plants import make_plant
-from ftstab_mj.sim import LoopSpec
+from ftstab_mj.scenario import LoopSpec
 
 ASSETS = Path(gymnasium.__file__).parent / "envs" / "mujoco" / "assets"
 MUJOCO_TEST_MODEL = Path(mujoco.__file__).parent / "testdata" / "model.xml"

@@ -1,4 +1,5 @@
-"""The README's quick start: exactly two commands; CI runs the test one verbatim; the run one works."""
+"""The README: its quick start (exactly two commands; CI runs the test one verbatim; the run one works),
+its length, its tables of verbs and scenarios against the command and scenarios/, and the docs site."""
 
 import re
 import shlex
@@ -61,11 +62,11 @@ def _design(*args):
     return json.loads(res.stdout)
 
 
-def test_the_readme_design_examples_are_what_design_prints():
-    """The figures of the README's `ftstab design` examples (max-c, min-time at r = 2, --u-max at r = 3)
-    are what the command prints today (it is deterministic): gains to their 5 printed digits, c_lower,
-    T(z0) and max |u0| to the digits the README gives. They had gone stale (6.8565 for 6.8587, ...)."""
-    text = " ".join((ROOT / "README.md").read_text().split())
+def test_the_docs_design_examples_are_what_design_prints():
+    """The figures of the `ftstab design` examples in docs/commands.md (max-c, min-time at r = 2, --u-max
+    at r = 3) are what the command prints today (it is deterministic): gains to their 5 printed digits,
+    c_lower, T(z0) and max |u0| to the digits the page gives. They had gone stale (6.8565 for 6.8587, ...)."""
+    text = " ".join((ROOT / "docs" / "commands.md").read_text().split())
     num = r"([0-9]+(?:\.[0-9]+)?)"
     m = re.search(rf"e\.g\. r = 2, k = -0\.2 gives gains {num}, {num} with c_lower = {num}", text)
     d = _design("--r", 2, "--k", -0.2)
@@ -77,3 +78,74 @@ def test_the_readme_design_examples_are_what_design_prints():
     d = _design("--r", 3, "--k", -0.1, "--u-max", 10, "--region", 1)
     assert d["gains"] == [float(m[i]) for i in (1, 2, 3)]
     assert f"{d['certificate']['c_lower']:.5g}" == m[4] and f"{d['u0_max']:.6g}" == m[5]
+
+
+def _table(section: str) -> list[list[str]]:
+    """The body rows (cells stripped) of the first table after the README's `## section` heading."""
+    lines = (ROOT / "README.md").read_text().split(f"## {section}\n", 1)[1].splitlines()
+    start = next(i for i, line in enumerate(lines) if line.startswith("|"))
+    block = []
+    for line in lines[start:]:
+        if not line.startswith("|"):
+            break
+        block.append([cell.strip() for cell in re.split(r"(?<!\\)\|", line.strip().strip("|"))])
+    return block[2:]
+
+
+def test_the_readme_is_a_guide_not_a_notebook():
+    """At most 300 lines, and no measurement history: load averages, "(measured)" titles, before/after."""
+    text = (ROOT / "README.md").read_text()
+    assert len(text.splitlines()) <= 300
+    for word in ("load average", "(measured", "before/after", "Before/after"):
+        assert word not in text, word
+
+
+def test_the_readme_verb_table_lists_every_verb_of_the_command():
+    proc = run_cli("--help")
+    assert proc.returncode == 0, proc.stderr
+    listed = proc.stdout.split("positional arguments:", 1)[1].split("options:", 1)[0]
+    verbs = set(re.findall(r"^    (\w+)", listed, re.M))
+    assert {"run", "list", "design", "certify", "sweep", "compare"} <= verbs
+    in_table = {re.match(r"`ftstab (\w+)", row[0]).group(1) for row in _table("Commands")}
+    assert in_table == verbs
+
+
+def test_the_readme_scenario_table_is_the_shipped_scenarios():
+    """One row per scenarios/*.toml, with the plant model and the law(s) the file declares."""
+    import tomllib
+
+    rows = {row[0].split()[0]: row for row in _table("Shipped scenarios")}
+    files = {p.stem: tomllib.loads(p.read_text()) for p in (ROOT / "scenarios").glob("*.toml")}
+    assert set(rows) == set(files)
+    for name, sc in files.items():
+        laws = sorted({loop["controller"]["law"] for loop in sc["loops"].values()})
+        assert rows[name][1] == sc["plant"]["model"], name
+        assert rows[name][2] == ", ".join(laws), name
+
+
+def test_the_readme_links_exist():
+    """Every relative link of the README names a file of the checkout (the docs pages above all)."""
+    text = (ROOT / "README.md").read_text()
+    links = [link.split("#")[0] for link in re.findall(r"\]\(([^)\s]+)\)", text) if "://" not in link]
+    assert links
+    missing = [link for link in links if link and not (ROOT / link).exists()]
+    assert missing == []
+
+
+def test_the_docs_site_builds_strictly(tmp_path):
+    """`mkdocs build --strict` (a broken link, a missing page or an API name that no longer resolves
+    fails it), into a temporary folder, never into the checkout."""
+    import importlib.util
+    import os
+    import sys
+
+    if importlib.util.find_spec("mkdocs") is None:
+        import pytest
+
+        pytest.skip("mkdocs is not installed (the docs extra)")
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(p for p in (str(ROOT), os.environ.get("PYTHONPATH", "")) if p))
+    proc = subprocess.run([sys.executable, "-m", "mkdocs", "build", "--strict", "--site-dir", str(tmp_path / "site"),
+                           "--config-file", str(ROOT / "mkdocs.yml")], capture_output=True, text=True, cwd=ROOT,
+                          env=env, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-4000:]
+    assert (tmp_path / "site" / "index.html").exists() and (tmp_path / "site" / "api" / "index.html").exists()

@@ -13,18 +13,18 @@ import numpy as np
 import pytest
 
 from conftest import ROOT, run_cli
-from ftstab_mj import native
+from ftstab_mj.simulation import native
 from ftstab_mj.control import LAWS, Law, LawOutput, Param, register_law
 from ftstab_mj.control.law import non_negative, unregister_law
-from ftstab_mj.disturbances import Signal
-from ftstab_mj.errors import ScenarioError
+from ftstab_mj.plants.disturbances import Signal
+from ftstab_mj.config.errors import ScenarioError
 from ftstab_mj.plants import PLANTS, make_plant, register_plant
 from ftstab_mj.plants.cart import CartPlant
-from ftstab_mj.records import LOOP_FIELDS
+from ftstab_mj.simulation.records import LOOP_FIELDS
 from ftstab_mj.scenario import LoopSpec, scenario_from_dict, scenario_to_dict
 from ftstab_mj.scenario.run import run_scenario
-from ftstab_mj.sim import Simulation
-from ftstab_mj.tomlfile import read_toml
+from ftstab_mj.simulation.run_loop import Simulation
+from ftstab_mj.config.tomlfile import read_toml
 
 
 class ToyPI(Law):
@@ -163,16 +163,29 @@ def test_a_law_without_a_native_twin_runs_in_python_or_refuses_native(toy_law):
             Simulation(make_plant("cart"), loops, period=0.01, physics_step=0.01, native=True)
 
 
-def test_the_registry_is_put_back_and_conflicting_declarations_are_refused(toy_law):
+def test_each_law_reads_its_own_declaration_of_a_shared_key(toy_law):
+    """Each law owns its parameter table: a plugin may call a parameter ki without asking toy_pi."""
     assert "toy_pi" in LAWS
 
     class Clash(ToyPI):
         name = "clash"
-        params = (Param("ki", float, "another meaning of ki"),)
+        params = (Param("ki", float, "another meaning of ki", check=lambda v: None if v >= 10 else "a number >= 10"),)
 
-    with pytest.raises(TypeError, match="'ki' is declared differently"):
-        register_law(Clash)
-    assert "clash" not in LAWS
+        @classmethod
+        def from_params(cls, r, values):
+            return cls(r, (3.0, 3.0), values["ki"])
+
+    register_law(Clash)
+    try:
+        ok = scenario_from_dict(_raw(law="clash", ki=12.0), "toy.toml")
+        assert ok.loops[0].controller.ki == 12.0
+        with pytest.raises(ScenarioError, match=r"loops\.cart\.controller\.ki: expected a number >= 10, found 1\.0"):
+            scenario_from_dict(_raw(law="clash", ki=1.0), "toy.toml")
+        with pytest.raises(ScenarioError, match=r"loops\.cart\.controller\.pd: expected only the clash law's "
+                           r"parameters \(ki\), found pd = \[3\.0, 3\.0\] \(an array\), a parameter of another law"):
+            scenario_from_dict(_raw(law="clash", ki=12.0, pd=[3.0, 3.0]), "toy.toml")
+    finally:
+        unregister_law("clash")
 
 
 def test_a_plant_registered_in_one_module_is_a_scenario_model(toy_plant):

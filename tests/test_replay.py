@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 
 from conftest import ROOT, rrd_rows, run_cli
-from ftstab_mj.errors import LogError
-from ftstab_mj.logs import McapSink, RerunSink
+from ftstab_mj.config.errors import LogError
+from ftstab_mj.logs import McapSink
 from ftstab_mj.logs.reader import read_log
-from ftstab_mj.metrics import compute_metrics
-from ftstab_mj.records import COMPLETED, INTERRUPTED, LOOP_FIELDS
+from ftstab_mj.metrics.run_metrics import compute_metrics
+from ftstab_mj.simulation.records import COMPLETED, INTERRUPTED, LOOP_FIELDS
 from synthetic_runs import batches, synthetic_run, write_run
 
 BATCH = 250

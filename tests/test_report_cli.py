@@ -10,8 +10,8 @@ import pytest
 from conftest import ROOT, run_cli
 from ftstab_mj.cli import main
 from ftstab_mj.logs.reader import read_log
-from ftstab_mj.metrics import loop_certificate
-from ftstab_mj.report import draw, report_data
+from ftstab_mj.metrics.run_metrics import loop_certificate
+from ftstab_mj.figures.run_report import draw, report_data
 
 PNG = b"\x89PNG\r\n\x1a\n"
 JSON_LOG = ROOT / "tests" / "data" / "json_log_v0.1.mcap"  # a log of ftstab_mj 0.1 (JSON loop messages)

@@ -8,9 +8,9 @@ import pytest
 from conftest import ROOT
 from ftstab_mj.scenario import scenario_from_dict
 from ftstab_mj.scenario.run import run_scenario
-from ftstab_mj.sim import Simulation
+from ftstab_mj.simulation.run_loop import Simulation
 from ftstab_mj.plants import make_plant
-from ftstab_mj.tomlfile import read_toml
+from ftstab_mj.config.tomlfile import read_toml
 
 # cart_r2_robust's plant and signals: |phi| <= 0.8 m/s^2, |phi'| <= 0.8 pi, gamma in [0.6, 1.4].
 CONTROLLERS = {

@@ -81,8 +81,8 @@ def _metrics_with(cert_of, duration=2.0):
     c') whose certificate is cert_of(r, k, gains, form, box limit, progress)."""
     from synthetic_runs import synthetic_run
 
-    from ftstab_mj import metrics as mt
-    from ftstab_mj.disturbances import Signal
+    from ftstab_mj.metrics import run_metrics as mt
+    from ftstab_mj.plants.disturbances import Signal
 
     info, loops, _, _ = synthetic_run("adaptive", duration=duration, with_model=False, phi=Signal("constant", 0.5))
     saved = mt._certificate
@@ -101,8 +101,8 @@ def test_a_pin_accepts_another_converged_branch_and_bound_and_rejects_a_wrong_br
     c' is 5 % high (then Delta)."""
     from dataclasses import replace
 
-    from ftstab_mj.certificate_cache import cached_certify
-    from ftstab_mj.expectations import check_metrics, pin_expectations
+    from ftstab_mj.metrics.certificate_cache import cached_certify
+    from ftstab_mj.metrics.expectations import check_metrics, pin_expectations
 
     info, pinned_from = _metrics_with(lambda r, k, g, form, n, say: cached_certify(r, k, g, form, n))
     pins = pin_expectations(pinned_from, info)
@@ -153,7 +153,7 @@ def test_a_limit_that_stops_the_branch_and_bound_before_c_is_proven_leaves_no_ti
 
     from ftstab_mj.cli import main
     from ftstab_mj.logs.reader import read_log
-    from ftstab_mj.metrics import envelope_kind
+    from ftstab_mj.metrics.run_metrics import envelope_kind
 
     m = _run_json(capsys, tmp_path, "cart_r3_robust", "sim.duration=0.2", "metrics.certificate_boxes=50")["cart"]
     cert = m["certificate"]
@@ -198,7 +198,7 @@ def test_a_log_recorded_before_the_limit_replays_with_the_branch_and_bounds_own_
     from synthetic_runs import synthetic_run
 
     from ftstab_mj.control.certificate import DEFAULT_MAX_BOXES
-    from ftstab_mj.records import RUN_CERTIFICATE_BOXES, RunInfo
+    from ftstab_mj.simulation.records import RUN_CERTIFICATE_BOXES, RunInfo
 
     info, _, _, _ = synthetic_run("nominal", duration=0.01, with_model=False)
     d = info.to_dict()
@@ -214,8 +214,8 @@ def test_the_certificates_are_computed_before_any_log_opens_with_a_progress_line
     in the cache), calling progress with a line naming the loop and its limit while the branch and
     bound runs (here from its start: PROGRESS_AFTER = 0), then "" (clear the line); a second run finds it
     cached and says nothing but ""."""
-    from ftstab_mj import certificate_cache as cc
-    from ftstab_mj import metrics as mt
+    from ftstab_mj.metrics import certificate_cache as cc
+    from ftstab_mj.metrics import run_metrics as mt
     from ftstab_mj.scenario import find_scenario, load_scenario
     from ftstab_mj.scenario.run import run_scenario
 
@@ -260,7 +260,7 @@ def test_processes_that_miss_the_cache_at_once_compute_the_certificate_once(tmp_
     child = """
 import sys, time
 from pathlib import Path
-from ftstab_mj import certificate_cache as cc
+from ftstab_mj.metrics import certificate_cache as cc
 calls = []
 real = cc._cert.certify
 cc._cert.certify = lambda *a, **k: calls.append(1) or real(*a, **k)
@@ -284,8 +284,8 @@ print(len(calls), repr(c.c_lower), c.boxes)
 def test_replay_of_a_log_from_another_machine_shows_the_certificates_progress(tmp_path, monkeypatch):
     """A log whose certificate is not in this machine's cache: stream_metrics computes it before
     the metrics, with the same status lines as a run (and "" at the end), and the same metrics."""
-    from ftstab_mj import certificate_cache as cc
-    from ftstab_mj import metrics as mt
+    from ftstab_mj.metrics import certificate_cache as cc
+    from ftstab_mj.metrics import run_metrics as mt
     from ftstab_mj.cli import main
     from ftstab_mj.logs.reader import stream_metrics
 

@@ -10,7 +10,7 @@ import json
 import pytest
 from conftest import ROOT, run_args, run_cli
 
-from ftstab_mj.errors import ScenarioError
+from ftstab_mj.config.errors import ScenarioError
 from ftstab_mj.scenario import (apply_override, load_scenario, scenario_from_dict, scenario_to_dict,
                                 shipped_scenarios)
 

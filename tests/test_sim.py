@@ -6,11 +6,13 @@ import pytest
 
 from conftest import record_run
 from ftstab_mj.control import AdaptiveLaw, HongController, RobustLaw
-from ftstab_mj.disturbances import Signal
-from ftstab_mj.errors import CallbackError, ParameterError
+from ftstab_mj.plants.disturbances import Signal
+from ftstab_mj.config.errors import CallbackError, ParameterError
 from ftstab_mj.plants import make_plant
-from ftstab_mj.records import COMPLETED, DIVERGED, FAILED, INTERRUPTED, LOOP_FIELDS
-from ftstab_mj.sim import LoopSpec, Simulation, control_callback, simulate
+from ftstab_mj.simulation.records import COMPLETED, DIVERGED, FAILED, INTERRUPTED, LOOP_FIELDS
+from ftstab_mj.scenario import LoopSpec
+
+from ftstab_mj.simulation.run_loop import Simulation, control_callback, simulate
 
 HONG2 = HongController(2, -0.2, (1.0, 2.0))
 HONG3 = HongController(3, -0.1, (1.0, 1.7, 5.0))

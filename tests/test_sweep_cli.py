@@ -8,12 +8,12 @@ import pytest
 
 from conftest import ROOT, run_cli, start_cli
 from ftstab_mj.logs.reader import read_log
-from ftstab_mj.metrics import compute_metrics
+from ftstab_mj.metrics.run_metrics import compute_metrics
 from ftstab_mj.scenario import load_scenario
 from ftstab_mj.scenario.run import run_scenario
-from ftstab_mj.sweep import expand, load_sweep
-from ftstab_mj.sweep.table import VARYING_COLUMNS, flatten, read_table
-from ftstab_mj.tomlfile import value_text
+from ftstab_mj.studies.sweep import expand, load_sweep
+from ftstab_mj.studies.sweep.table import VARYING_COLUMNS, flatten, read_table
+from ftstab_mj.config.tomlfile import value_text
 
 SWEEPS = ROOT / "scenarios" / "sweeps"
 PNG = b"\x89PNG\r\n\x1a\n"
@@ -229,7 +229,7 @@ fit = true
 def test_a_grid_over_whole_controller_tables_switches_laws_cleanly(tmp_path):
     """A table value replaces the base's table: the adaptive row keeps none of the robust base's
     phibar/gamma_m (a grid over `law` alone fails every row for that reason). Validation only."""
-    from ftstab_mj.sweep.runner import prepare
+    from ftstab_mj.studies.sweep.row import prepare
 
     path = tmp_path / "laws.toml"
     path.write_text(f'''name = "laws"

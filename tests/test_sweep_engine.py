@@ -9,11 +9,11 @@ import math
 import numpy as np
 import pytest
 
-from ftstab_mj.errors import SweepError
-from ftstab_mj.sweep.expand import draw_value, expand, grid_values
-from ftstab_mj.sweep.run import run_sweep
-from ftstab_mj.sweep.spec import Draw, GridParam, load_sweep
-from ftstab_mj.sweep.table import VARYING_COLUMNS, read_journal, read_table
+from ftstab_mj.config.errors import SweepError
+from ftstab_mj.studies.sweep.expand import draw_value, expand, grid_values
+from ftstab_mj.studies.sweep.run import run_sweep
+from ftstab_mj.studies.sweep.spec import Draw, GridParam, load_sweep
+from ftstab_mj.studies.sweep.table import VARYING_COLUMNS, read_journal, read_table
 from tests.sweep_chain import ChainTask
 
 
@@ -198,8 +198,8 @@ def test_resume_after_an_interruption_runs_only_the_missing_rows(tmp_path):
 
 # -- report ------------------------------------------------------------------------------------------
 def test_report_fits_the_log_log_slope_of_each_series_from_completed_runs_only(tmp_path):
-    from ftstab_mj.sweep.report import make_report
-    from ftstab_mj.sweep.table import write_table
+    from ftstab_mj.figures.sweep_report import make_report
+    from ftstab_mj.studies.sweep.table import write_table
 
     body = ('[[report.plot]]\nx = "h"\ny = "metrics.acc"\nby = "r"\nlogx = true\nlogy = true\nfit = true\n'
             '[[report.plot]]\nx = "h"\ny = "metrics.other"\n')
@@ -223,8 +223,8 @@ def test_report_fits_the_log_log_slope_of_each_series_from_completed_runs_only(t
 
 
 def test_report_names_a_missing_column(tmp_path):
-    from ftstab_mj.sweep.report import make_report
-    from ftstab_mj.sweep.table import write_table
+    from ftstab_mj.figures.sweep_report import make_report
+    from ftstab_mj.studies.sweep.table import write_table
 
     sw = load_sweep(write_sweep(tmp_path, '[[report.plot]]\nx = "h"\ny = "metrics.acc"\n'))
     table = write_table([{"row": 0, "sample": 0, "h": 1.0, "status": "completed", "metrics.acc_z": 1.0}],

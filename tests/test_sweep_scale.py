@@ -12,10 +12,11 @@ import sys
 import pytest
 
 from conftest import ROOT
-from ftstab_mj.sweep import engine, expand, load_sweep, runner
-from ftstab_mj.sweep.run import run_sweep
-from ftstab_mj.sweep.runner import ScenarioTask, prepare
-from ftstab_mj.sweep.table import read_table
+from ftstab_mj.studies.sweep import engine, expand, load_sweep
+from ftstab_mj.studies.sweep import row as runner
+from ftstab_mj.studies.sweep.run import run_sweep
+from ftstab_mj.studies.sweep.row import ScenarioTask, prepare
+from ftstab_mj.studies.sweep.table import read_table
 from tests.sweep_chain import ChainTask, NoValidationTask, StopOnceTask
 from tests.test_sweep_engine import CHAIN_SWEEP, results, write_sweep
 
@@ -94,8 +95,8 @@ def test_no_engine_validates_a_prepared_row_twice_and_every_engine_gives_the_sam
 
 FORK_CHECK = """
 import threading
-from ftstab_mj.callback import control_callback
-from ftstab_mj.sweep.engine import start_method
+from ftstab_mj.plants.callback import control_callback
+from ftstab_mj.studies.sweep.engine import start_method
 print(start_method())
 with control_callback(lambda m, d: None, owner="a run"):
     print(start_method())
@@ -136,7 +137,7 @@ def test_a_local_cluster_whose_worker_hangs_while_starting_is_an_engine_error_no
     never returns) must fail the start within WORKER_START_TIMEOUT, with one line naming the engine."""
     import time
 
-    from ftstab_mj.errors import EngineError
+    from ftstab_mj.config.errors import EngineError
 
     monkeypatch.setattr(engine, "WORKER_START_TIMEOUT", 3.0)
     monkeypatch.setattr(engine, "LOCAL_PRELOAD", [*engine.LOCAL_PRELOAD, "tests.hung_worker"])
@@ -154,7 +155,7 @@ def test_a_local_cluster_start_failing_with_a_message_of_several_lines_is_one_li
     seven; the engine's error stays one line, with the whole message in it."""
     import distributed
 
-    from ftstab_mj.errors import EngineError
+    from ftstab_mj.config.errors import EngineError
 
     cause = RuntimeError("\n        An attempt has been made to start a new process before the\n"
                          "        current process has finished its bootstrapping phase.\n")
@@ -172,7 +173,7 @@ def test_a_local_cluster_start_failing_with_a_message_of_several_lines_is_one_li
 
 FORKED_ROWS = """
 import json, sys
-from ftstab_mj.sweep.engine import execute, start_method
+from ftstab_mj.studies.sweep.engine import execute, start_method
 from tests.sweep_chain import ChainTask, NoValidationTask
 items = [(i, (("period", 0.01 * (i + 1)),)) for i in range(int(sys.argv[1]))]
 assert start_method() == "fork"
@@ -192,7 +193,7 @@ def test_forked_workers_after_the_first_row_run_in_the_parent_give_the_serial_re
 
 WHERE_ROWS = """
 import json, os, sys
-from ftstab_mj.sweep.engine import WARM_UP_ROWS_PER_WORKER, execute, start_method
+from ftstab_mj.studies.sweep.engine import WARM_UP_ROWS_PER_WORKER, execute, start_method
 from tests.sweep_chain import WhereTask
 assert start_method() == "fork"
 out = {}
@@ -249,7 +250,7 @@ def test_a_sweep_process_runs_with_one_blas_thread_and_without_opengl(tmp_path):
 
 LOCAL_CLUSTER = """
 import json, os
-from ftstab_mj.batch_env import batch_environment
+from ftstab_mj.studies.batch_env import batch_environment
 batch_environment()  # as under `ftstab sweep`
 
 
@@ -266,10 +267,10 @@ def probe():  # in a worker: who its parent is, and what that parent runs
             "quiet": {key: dask.config.get(key) for key in QUIET}}
 
 
-from ftstab_mj.sweep.engine import QUIET
+from ftstab_mj.studies.sweep.engine import QUIET
 
 if __name__ == "__main__":
-    from ftstab_mj.sweep.engine import _dask_close, _dask_connect
+    from ftstab_mj.studies.sweep.engine import _dask_close, _dask_connect
     client, cluster = _dask_connect(2, None)
     try:
         print(json.dumps({"me": os.getpid(), "workers": list(client.run(probe).values())}))
@@ -338,7 +339,7 @@ def test_rows_of_equal_cost_end_after_their_share_of_one_worker_whatever_their_n
 
 MEANWHILE = """
 import json, multiprocessing, sys
-from ftstab_mj.sweep.engine import execute
+from ftstab_mj.studies.sweep.engine import execute
 from tests.sweep_chain import ChainTask
 items = [(i, (("period", 0.01 * (i + 1)),)) for i in range(6)]
 seen = {}
@@ -366,7 +367,7 @@ def test_the_callers_work_meanwhile_runs_once_after_the_workers_are_forked_and_b
 
 STOPPED_WORKER = """
 import json, sys, time
-from ftstab_mj.sweep import engine
+from ftstab_mj.studies.sweep import engine
 from tests.sweep_chain import ChainTask, StopOnceTask
 engine.WORKER_STOP_TIMEOUT, engine.WATCH_INTERVAL = 1.0, 0.1
 items = [(i, (("period", 0.01 * (1 + i % 5)),)) for i in range(40)]
@@ -401,7 +402,7 @@ def test_a_process_worker_stopped_or_dead_mid_sweep_loses_no_row_its_rows_run_ag
 
 KILLER_ROW = """
 import json, sys
-from ftstab_mj.sweep import engine
+from ftstab_mj.studies.sweep import engine
 from tests.sweep_chain import ChainTask, KillAlwaysTask
 items = [(i, (("period", 0.01 * (1 + i % 5)),)) for i in range(40)]
 got = list(engine.execute(items, KillAlwaysTask(0.2, row=int(sys.argv[1]), marker=sys.argv[2]), "processes", 2))
@@ -429,7 +430,7 @@ def test_a_row_that_kills_its_worker_each_time_is_run_twice_then_lost_and_every_
 
 STOPPER_ROW = """
 import sys
-from ftstab_mj.sweep import engine
+from ftstab_mj.studies.sweep import engine
 from tests.sweep_chain import KillAlwaysTask
 engine.WORKER_STOP_TIMEOUT, engine.WATCH_INTERVAL = 1.0, 0.1
 items = [(i, (("period", 0.01 * (1 + i % 5)),)) for i in range(40)]
@@ -501,12 +502,12 @@ def test_a_failure_to_close_the_dask_engine_is_one_line_on_stderr_and_the_rest_i
 
 
 def test_the_readme_cluster_commands_set_exactly_the_local_clusters_quiet_configuration():
-    """The README's `export DASK_...` line for an external cluster's scheduler and workers, read by Dask as a
+    """The sweeps page's (docs/sweeps.md) `export DASK_...` line for an external cluster's scheduler and workers, read by Dask as a
     `dask worker` reads it (a fresh process, distributed's defaults loaded), gives engine.QUIET's values for
     its keys, and names no key more: a renamed key or a misspelt variable would be silently ignored by Dask."""
     import re
 
-    text = (ROOT / "README.md").read_text(encoding="utf-8")
+    text = (ROOT / "docs" / "sweeps.md").read_text(encoding="utf-8")
     block = text[text.index("### A sweep on a Dask cluster of several machines"):]
     block = block[:block.index("dask scheduler")]
     names = dict(re.findall(r"(DASK_[A-Z_]+)=(\S+)", block))

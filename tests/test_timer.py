@@ -2,9 +2,8 @@
 
 import mujoco
 import numpy as np
-import pytest
 
-from ftstab_mj.callback import _timer_slot, timer_off
+from ftstab_mj.plants.callback import _timer_slot, timer_off
 from ftstab_mj.scenario import find_scenario, load_scenario
 from ftstab_mj.scenario.run import run_scenario
 

@@ -5,7 +5,7 @@ import numpy as np
 
 from ftstab_mj.logs import McapSink
 from ftstab_mj.logs.reader import LogStream, read_log, stream_metrics
-from ftstab_mj.records import LOOP_FIELDS
+from ftstab_mj.simulation.records import LOOP_FIELDS
 from ftstab_mj.scenario import load_scenario, shipped_scenarios
 from ftstab_mj.scenario.run import run_scenario, verify_log
 from synthetic_runs import write_run
@@ -21,7 +21,7 @@ def _log(tmp_path, name, res, loops, pos, batch=7):
 
 
 def run_metrics(res, loops):
-    from ftstab_mj.metrics import compute_metrics
+    from ftstab_mj.metrics.run_metrics import compute_metrics
 
     return compute_metrics(res.info, loops, res.status)
 

@@ -1,4 +1,8 @@
-"""The paper's mathematics as plain NumPy (no MuJoCo): Hong's controller, the laws, the certificate."""
+"""Layer 2, control: the paper's mathematics and every law as plain NumPy (no MuJoCo).
+
+Hong's controller, V1, the laws (one module each in ``laws/``; the protocol and registry in ``law``),
+the certificate and the gain designer. May import: config.
+"""
 
 from ftstab_mj.control.certificate import Certificate, Theorem3Bounds, certify, theorem3_bounds
 from ftstab_mj.control.hong import (

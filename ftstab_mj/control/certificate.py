@@ -33,9 +33,10 @@ from typing import NamedTuple
 import numpy as np
 
 from ftstab_mj.control.hong import HongController
-from ftstab_mj.control.hong_terms import SLOTS, SimplifiedTerms, Terms, _power, exp_of
-from ftstab_mj.control.interval import Dual, Exp, Iv, _dn, _up, affine_remainder, secant_slope
-from ftstab_mj.errors import ParameterError
+from ftstab_mj.control.hong_terms import SLOTS, SimplifiedTerms, Terms, exact_power, exp_of
+from ftstab_mj.control.nelder_mead import nelder_mead
+from ftstab_mj.control.interval import Dual, Exp, Iv, round_down, round_up, affine_remainder, secant_slope
+from ftstab_mj.config.errors import ParameterError
 
 DEFAULT_SAMPLES = 20_000  # witness search: states sampled on the faces before the B&B
 DEFAULT_SEED = 0
@@ -50,7 +51,7 @@ MAX_LIVE_BOXES = 8_000_000
 # (r = 5, k = -0.01: 22 % more boxes a CPU second than at 8192; small problems never reach it)
 SPLIT_BATCH = 32768
 # rounds of at most MERGE_FACES (r - 2) boxes (at least MERGE_FACES) are evaluated in one call for
-# every face (_Ratio.boxes with an array of faces), larger ones face by face: a call costs ~15 ms
+# every face (Ratio.boxes with an array of faces), larger ones face by face: a call costs ~15 ms
 # (r = 3) to ~100 ms (r = 6) of NumPy overhead whatever its size, and one over several faces costs
 # more per box (every coordinate a variable). Measured, one call against one a face on random boxes
 # of all faces (CPU, median of 3): r = 3 0.47x at 512 boxes, 0.69x at 4096, 1.39x at 16384; r = 4
@@ -58,14 +59,14 @@ SPLIT_BATCH = 32768
 MERGE_FACES = 4096
 CERTIFIED, NOT_CERTIFIED, UNDECIDED = "certified", "not certified", "undecided"
 # factors of Terms.evaluate (slot % SLOTS) that dV1/dt is affine in: |y_i|^(1 - 1/beta_{i-1}) and
-# |s_i|^(q_i - 1), which enter only dS_i/dt (step 5 of _Ratio.boxes)
+# |s_i|^(q_i - 1), which enter only dS_i/dt (step 5 of Ratio.boxes)
 AFFINE_SLOTS = (0, 1)
 # held only for exponents this small (k ~ -0.002 .. -0.005): |x|^e on a box of width w that holds 0
 # ranges over [0, w^e], still [0, 0.93] at w = 1e-6 for e = 0.005, so bisection never narrows it; a
 # larger e shrinks with the box, and holding costs more than it saves (measured: r = 3, k = -0.1,
 # +20 % CPU for 1.5 % fewer boxes; r = 5, k = -0.01 and -0.02, half the boxes in 30 s, same c_lower)
 HELD_EXPONENT = 0.005
-# step 6 of _Ratio.boxes: the factors whose argument is a box coordinate s_i, sig(s_i, e_i) (in v_i) and
+# step 6 of Ratio.boxes: the factors whose argument is a box coordinate s_i, sig(s_i, e_i) (in v_i) and
 # sig(s_i, q_i) (in S_i), whose remainders are bounded together with s_i
 PAIRED_SLOTS = (2, 5)
 PAIR_SHARE = 0.1  # paired only where the remainder's term is at least this share of the form's terms
@@ -213,7 +214,7 @@ def _enclosure_at(t: Terms, z):
                 return Iv(z[:, i - 1])
             if slot % SLOTS == 0:
                 return Iv(z[:, i - 1]).pabs(t.beta_m1[i - 1])
-            return _power(slot, x, e, op)
+            return exact_power(slot, x, e, op)
 
         return t.evaluate(s, exact_z)[:3]
 
@@ -224,7 +225,7 @@ GOLDEN = (np.sqrt(5.0) - 1.0) / 2.0
 LAST_SWEEP = np.concatenate([-np.logspace(1, -10, 111), [0.0], np.logspace(-10, 1, 111)])  # s_r / |s_r| of the limit state
 
 
-def _zero_set_witness(obj: "_Ratio", seed: int):
+def _zero_set_witness(obj: "Ratio", seed: int):
     """(guaranteed lower bound of R = dV1/dt / V1^alpha, state z (r,)) at the best of the face states
     put on a zero set z_i = 0 (i = 2..r - 1; ZERO_SET_STATES per face and set), or None (r <= 2).
 
@@ -273,7 +274,7 @@ def _zero_set_witness(obj: "_Ratio", seed: int):
     return None if arg is None else (best, arg)
 
 
-def zero_set_starts(obj: "_Ratio") -> dict:
+def zero_set_starts(obj: "Ratio") -> dict:
     """{i: face states (2, r) on z_i = 0}: the maximiser of dV1/dt / V1 on that set in the limit
     k -> 0- (linear_limit.limit_forms, both signs) with s_r then set to the best of LAST_SWEEP
     (times its face value) by the float R, refined by a golden section. The limit's maximiser is
@@ -347,7 +348,7 @@ def _onto_unit_level(hong, z):
     return hong.dilate(z, lam)
 
 
-def _refine_max(hong, f, z_best, rng, rounds=60, spread=0.2):
+def refine_max(hong, f, z_best, rng, rounds=60, spread=0.2):
     """Local random search for max f on {V1 = 1}, started from the rows of z_best (m, r): an estimate
     from below of a maximum (loop_stages.actuator's u_needed uses it; the certificate does not)."""
     z = z_best.copy()
@@ -364,7 +365,7 @@ def _refine_max(hong, f, z_best, rng, rounds=60, spread=0.2):
 
 # -- the quantity maximised over the faces ----------------------------------------------------------
 
-class _Ratio:
+class Ratio:
     """num / V1^a on the faces z_f = 1 of the cube: num = dV1/dt (kind "c") or |dV1/dz_r| ("cp")."""
 
     def __init__(self, terms: Terms, kind: str):
@@ -643,7 +644,7 @@ class _Ratio:
             # on a box (its coordinate held at 1, a factor not split there: its gradient component is
             # then seeded 0, and outward rounding leaves a trace) adds nothing there, not even a rounding
             absent = fixed[jj] if jj < r else ~phis[jj - r].near
-            mv = np.where(absent, mv, _up(mv + term)) if absent.any() else _up(mv + term)
+            mv = np.where(absent, mv, round_up(mv + term)) if absent.any() else round_up(mv + term)
         self._excess = mv - base  # the mean-value form's terms (for the choice of step 5's boxes)
         return F.v.hi.copy(), mv, score, F, phis
 
@@ -797,10 +798,10 @@ def _widened(val: Iv, x: Dual, phis, r: int) -> Iv:
         for sl, var in phis.items():
             gg = x.g[r + sl]
             if gg is not None:
-                term = _up(gg.mag() * _up(var.rng.hi - var.rng.lo))
+                term = round_up(gg.mag() * round_up(var.rng.hi - var.rng.lo))
                 # only where the factor is split (elsewhere it is no variable: no term, no rounding)
-                dev = np.where(var.near, _up(dev + np.where(np.isnan(term), np.inf, term)), dev)
-    return Iv(np.maximum(_dn(val.lo - dev), x.v.lo), np.minimum(_up(val.hi + dev), x.v.hi))
+                dev = np.where(var.near, round_up(dev + np.where(np.isnan(term), np.inf, term)), dev)
+    return Iv(np.maximum(round_down(val.lo - dev), x.v.lo), np.minimum(round_up(val.hi + dev), x.v.hi))
 
 
 def _baumann(g, lo, hi, mid):
@@ -821,7 +822,7 @@ def _sub(x: Iv, rows) -> Iv:
 
 def _paired_term(gj, ga, lo, hi, cj, a, D, ca, e, op):
     """An upper bound of gj (x - cj) + ga (d - ca) over x in [lo, hi], d = phi(x) - a x, gj in the
-    Iv gj, ga in the Iv ga (phi = sig(., e) or |.|^e as op): step 6 of _Ratio.boxes. With floats
+    Iv gj, ga in the Iv ga (phi = sig(., e) or |.|^e as op): step 6 of Ratio.boxes. With floats
     g = mid gj, h = mid ga and any float slope b, it is h (phi(x) - b x) + (g - h (a - b)) x - g cj -
     h ca (an identity) plus (gj - g)(x - cj) + (ga - h)(d - ca), each part bounded on its own; inf
     where that is not a number."""
@@ -835,14 +836,14 @@ def _paired_term(gj, ga, lo, hi, cj, a, D, ca, e, op):
         G, H = Iv(g), Iv(h)
         eps = G - H * (Iv(a) - Iv(b))
         lin = H * affine_remainder(X, e, op, b) + eps * X - G * Iv(cj) - H * Iv(ca)
-        out = _up(_up(lin.hi + _term(gj - G, lo, hi, cj)) + _term(ga - H, D.lo, D.hi, ca))
+        out = round_up(round_up(lin.hi + _term(gj - G, lo, hi, cj)) + _term(ga - H, D.lo, D.hi, ca))
     return np.where(ok & ~np.isnan(out), out, np.inf)
 
 
 def _term(g, lo, hi, c):
     """An upper bound of g (x - c) over g in the Iv g and x in [lo, hi] (arrays), outward-rounded; inf
     where g is NaN or the centre c is not a finite number (Iv's product reads a NaN factor as 0)."""
-    t = (g * Iv(_dn(lo - c), _up(hi - c))).hi
+    t = (g * Iv(round_down(lo - c), round_up(hi - c))).hi
     return np.where(np.isnan(g.lo) | np.isnan(g.hi) | ~np.isfinite(c), np.inf, t)
 
 
@@ -869,19 +870,18 @@ def face_points(r: int, per_face: int, rng) -> np.ndarray:
     return np.concatenate(pts)
 
 
-def _seed_points(obj: _Ratio, samples: int, rng) -> np.ndarray:
+def _seed_points(obj: Ratio, samples: int, rng) -> np.ndarray:
     """States on the faces with a large float R: sampled, then improved by a local random search."""
     z = face_points(obj.r, max(1, samples // obj.r), rng)
     f = obj.floats(z)
     top = np.argsort(f)[-min(32, len(f)):]
-    z = _climb(obj, z[top], rng)
+    z = climb(obj, z[top], rng)
     return np.concatenate([z, _polish(obj, z[np.argsort(obj.floats(z))[-4:]])])
 
 
 def _zero_set_polish(row, i, onto, R, iters=400):
     """Nelder-Mead ascent of the float R on the zero set y_i = 0 from the face state ``row`` (r,):
     the free coordinates are those with |s_j| < 1 but s_i (``onto`` sets it)."""
-    from ftstab_mj.control.design import nelder_mead
 
     free = np.nonzero(np.abs(row) < 1.0)[0]
     free = free[free != i - 1]
@@ -897,11 +897,10 @@ def _zero_set_polish(row, i, onto, R, iters=400):
     return state(x)[0]
 
 
-def _polish(obj: _Ratio, z, iters=400):
+def _polish(obj: Ratio, z, iters=400):
     """Nelder-Mead ascent of the float R from each row of z (n, r), its largest coordinate held:
     the simplex is affine invariant, so it climbs the narrow ridges of gains spanning many decades
     where a random search stalls. Any state is a valid witness (it need not stay on the cube)."""
-    from ftstab_mj.control.design import nelder_mead
 
     if obj.r == 1:
         return z
@@ -920,7 +919,7 @@ def _polish(obj: _Ratio, z, iters=400):
     return np.array(out)
 
 
-def _climb(obj: _Ratio, z, rng, rounds=80, step0=0.3):
+def climb(obj: Ratio, z, rng, rounds=80, step0=0.3):
     """Local random search for larger float R from the rows of z (n, r), staying on their faces."""
     z = z.copy()
     f = obj.floats(z)
@@ -935,7 +934,7 @@ def _climb(obj: _Ratio, z, rng, rounds=80, step0=0.3):
     return z
 
 
-def _maximise(obj: _Ratio, seeds, rtol, deadline, stop_if_positive, progress=None, rng=None,
+def _maximise(obj: Ratio, seeds, rtol, deadline, stop_if_positive, progress=None, rng=None,
               max_boxes=DEFAULT_MAX_BOXES, proven=-np.inf) -> _Max:
     """Branch and bound for max R over the r faces (see the module docstring).
 
@@ -1034,7 +1033,7 @@ def _maximise(obj: _Ratio, seeds, rtol, deadline, stop_if_positive, progress=Non
         if iteration % 4 == 0:  # climb from the centres of the best boxes: a better witness prunes more
             order = np.argsort(ub)[-16:]
             cz = np.array([np.insert(0.5 * (lo[j] + hi[j]), face[j], 1.0) for j in order])
-            cz = _climb(obj, cz, rng, rounds=30, step0=0.05)
+            cz = climb(obj, cz, rng, rounds=30, step0=0.05)
             lbs = obj.points(cz).lo
             j = int(np.nanargmax(lbs)) if np.isfinite(lbs).any() else -1
             if j >= 0 and lbs[j] > best:
@@ -1101,7 +1100,7 @@ def certify(hong: HongController, samples: int = DEFAULT_SAMPLES, seed: int = DE
         def say(best, top, n, what="c"):
             progress(f"{what}: bound {-top if what == 'c' else top:.6g} .. {-best if what == 'c' else best:.6g}"
                      f" after {n} boxes, {time.process_time() - t0:.1f} s")
-    obj = _Ratio(terms, "c")
+    obj = Ratio(terms, "c")
     # a budget keeps a tenth for c' (Theorem 3 needs it once c > 0 is proven)
     deadline_c = deadline if budget is None else t0 + 0.9 * budget
     # the best zero-set state's guaranteed value is the B&B's witness value wherever it beats the
@@ -1118,7 +1117,7 @@ def certify(hong: HongController, samples: int = DEFAULT_SAMPLES, seed: int = DE
     status = CERTIFIED if c_lower > 0 else NOT_CERTIFIED if c_upper <= 0 else UNDECIDED
     mp = None
     if status == CERTIFIED:  # c' only matters (Theorem 3) where the certificate holds
-        objp = _Ratio(terms, "cp")
+        objp = Ratio(terms, "cp")
         mp = _maximise(objp, _seed_points(objp, samples, rng), rtol, max(deadline, time.process_time() + 0.1), False,
                        None if say is None else (lambda b, t, n: say(b, t, n, "c'")), rng, max_boxes)
     k = hong.k

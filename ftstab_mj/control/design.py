@@ -71,6 +71,7 @@ import numpy as np
 
 from ftstab_mj.control.certificate import face_points
 from ftstab_mj.control.linear_limit import limit_c, linear_c
+from ftstab_mj.control.nelder_mead import nelder_mead
 
 OBJECTIVES = ("max-c", "min-time")
 REFUTE_ROUNDS = 8  # searches per start, each after adding the state where the last result failed
@@ -90,59 +91,20 @@ GRID_N = {3: 80, 4: 20}  # values an axis, by r (1e5, 2e5 states); r = 2: its 20
 PRUNE_MARGIN = 1e-9  # relative: covers the float rounding of a skipped candidate's least possible T(z0)
 
 
-def nelder_mead(f, x0, step=0.5, iters=300, tol=1e-7):
-    """Minimise f over R^n from x0 with the Nelder-Mead simplex (standard coefficients). Deterministic.
-
-    Returns (x, f(x)). f may return inf (an infeasible point).
-    """
-    n = len(x0)
-    pts = [np.asarray(x0, dtype=float)]
-    for i in range(n):
-        p = pts[0].copy()
-        p[i] += step
-        pts.append(p)
-    vals = [f(p) for p in pts]
-    for _ in range(iters):
-        order = np.argsort(vals)
-        pts, vals = [pts[i] for i in order], [vals[i] for i in order]
-        if abs(vals[-1] - vals[0]) <= tol * (abs(vals[0]) + tol) and np.isfinite(vals[-1]):
-            break
-        cen = np.mean(pts[:-1], axis=0)
-        xr = cen + (cen - pts[-1])
-        fr = f(xr)
-        if fr < vals[0]:
-            xe = cen + 2.0 * (cen - pts[-1])
-            fe = f(xe)
-            pts[-1], vals[-1] = (xe, fe) if fe < fr else (xr, fr)
-        elif fr < vals[-2]:
-            pts[-1], vals[-1] = xr, fr
-        else:
-            xc = cen + 0.5 * (pts[-1] - cen)
-            fc = f(xc)
-            if fc < vals[-1]:
-                pts[-1], vals[-1] = xc, fc
-            else:
-                for i in range(1, n + 1):
-                    pts[i] = pts[0] + 0.5 * (pts[i] - pts[0])
-                    vals[i] = f(pts[i])
-    i = int(np.argmin(vals))
-    return pts[i], vals[i]
-
-
 def _estimate_c(r, k, gains, pts, rng):
     """-max over the fixed states pts (n, r) (recursion variables s on the faces) of the float
     ratio, improved by a short climb: an estimate of c from above (cheap; the final candidate is
     certified soundly). At k = 0 the closed form linear_c."""
-    from ftstab_mj.control.certificate import _climb, _Ratio, zero_set_starts
+    from ftstab_mj.control.certificate import climb, Ratio, zero_set_starts
     from ftstab_mj.control.hong_terms import Terms
 
     if k == 0:
         return linear_c(gains)
-    obj = _Ratio(Terms(r, k, gains), "c")
+    obj = Ratio(Terms(r, k, gains), "c")
     pts = np.concatenate([pts, *zero_set_starts(obj).values()])  # they move with the gains
     f = obj.floats(pts)
     top = pts[np.argsort(f)[-8:]]
-    z = _climb(obj, top, rng, rounds=20)
+    z = climb(obj, top, rng, rounds=20)
     return -float(max(np.max(f), np.max(obj.floats(z))))
 
 

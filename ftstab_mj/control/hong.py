@@ -21,7 +21,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ftstab_mj.errors import ParameterError
+from ftstab_mj.config.errors import ParameterError
 
 FORMS = ("full", "simplified")
 

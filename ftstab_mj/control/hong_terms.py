@@ -32,7 +32,7 @@ from fractions import Fraction
 
 import numpy as np
 
-from ftstab_mj.control.interval import Dual, Exp, Iv, _gadd, minus_one
+from ftstab_mj.control.interval import Dual, Exp, Iv, grad_add, minus_one
 
 
 def exp_of(x: Fraction) -> Exp:
@@ -84,7 +84,7 @@ class Terms:
         """
         fl = not any(isinstance(x, (Iv, Dual)) for x in s)
         C = lambda c: self.const(c, fl)  # noqa: E731
-        f = factor or _power
+        f = factor or exact_power
         r = self.r
         z, y, S = [None] * r, [None] * r, {}
         y[0] = s[0]
@@ -129,7 +129,7 @@ class Terms:
         identities are used everywhere: sound for values at states (intervals, floats), not for the
         gradient of such an F.
         """
-        f = factor or _power
+        f = factor or exact_power
         r, fl = self.r, not any(isinstance(x, (Iv, Dual)) for x in s)
         C = lambda c: self.const(c, fl)  # noqa: E731
         z, y, S = self.z_of(s, f)
@@ -231,7 +231,7 @@ class Terms:
             av = _val(a)
             dz = _val(f(slot, _sig(z, b) - _sig(a, b), sv, "value"))
             da = -(dv * (b.iv() * av.pabs(self.beta_m1[b_index])))
-            own = [_gadd(None if gz is None else dz * gz, None if ga is None else da * ga) for gz, ga in zip(zg, ag)]
+            own = [grad_add(None if gz is None else dz * gz, None if ga is None else da * ga) for gz, ga in zip(zg, ag)]
             g = [_pick(offm, go, gm) for go, gm in zip(own, g)]
         return Dual(val, g)
 
@@ -288,7 +288,7 @@ def _val(x) -> Iv:
 SLOTS = 6  # quantities per level i that Terms.evaluate hands to its ``factor`` argument
 
 
-def _power(slot, x, e, op: str):
+def exact_power(slot, x, e, op: str):
     """The default ``factor`` of Terms.evaluate: the power itself (op "value": e the enclosure)."""
     if op == "value":
         return Dual(e, x.g) if isinstance(x, Dual) else e

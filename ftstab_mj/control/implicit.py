@@ -33,7 +33,7 @@ from __future__ import annotations
 import numpy as np
 
 from ftstab_mj.control.law import Param, one_of
-from ftstab_mj.errors import ParameterError
+from ftstab_mj.config.errors import ParameterError
 
 DISCRETIZATIONS = ("explicit", "implicit")
 DISCRETIZATION = Param("discretization", str, "discretization of the sign term: explicit sign(sigma_k) or "

@@ -2,7 +2,7 @@
 
 ``Iv(lo, hi)`` holds one interval per array element (any shape, all elements evaluated at once).
 Every operation rounds its result outward: the bounds of ``+ - * /`` (correctly rounded in IEEE
-754, error <= 1/2 ulp) are moved outward by d = |x| 2^-52 + 2^-1074 >= 1 ulp(x) (``_up``/``_dn``:
+754, error <= 1/2 ulp) are moved outward by d = |x| 2^-52 + 2^-1074 >= 1 ulp(x) (``round_up``/``round_down``:
 the rounded x + d is at least the next float; a few array operations, half the cost of
 ``np.nextafter``: benchmarks/certificate_table.py --rounding). ``x ** p`` (NumPy's power, measured within 1 ulp
 against mpmath on this machine's SIMD path) is moved outward by 16 ulps relative, on both paths. An exponent is
@@ -33,13 +33,13 @@ _TINY = 2.0 ** -1074  # the ulp of the subnormals
 _POW_ULPS = 16  # outward margin of every x ** p bound, in ulps: NumPy's power errs by <= 1 ulp here
 
 
-def _dn(x, n=1):
+def round_down(x, n=1):
     """A float <= x - n ulp(x) for n <= 2, <= x - (n - 1) ulp(x) for any n (NaN stays NaN; +inf, an
     overflow, becomes the largest float)."""
     return np.minimum(x - (np.minimum(np.abs(x), _MAX) * (n * _ULP) + n * _TINY), _MAX)
 
 
-def _up(x, n=1):
+def round_up(x, n=1):
     """A float >= x + n ulp(x) for n <= 2, >= x + (n - 1) ulp(x) for any n (NaN stays NaN; -inf
     becomes minus the largest float)."""
     return np.maximum(x + (np.minimum(np.abs(x), _MAX) * (n * _ULP) + n * _TINY), -_MAX)
@@ -86,7 +86,7 @@ def _pow_pos(x, e: Exp, lower: bool):
             a, b = np.power(x, e.lo), np.power(x, e.hi)
             # the same 16-ulp margin as the narrow path: libm's power is not correctly rounded (within
             # 1 ulp here), and a less accurate one elsewhere must not make the bound wrong
-            return _dn(np.minimum(a, b), _POW_ULPS) if lower else _up(np.maximum(a, b), _POW_ULPS)
+            return round_down(np.minimum(a, b), _POW_ULPS) if lower else round_up(np.maximum(a, b), _POW_ULPS)
         a = np.power(x, e.lo)
     w = _pow_widen(a, e)
     return np.clip(a - w, 0.0, _MAX) if lower else a + w  # an overflow's lower bound is the largest float
@@ -135,7 +135,7 @@ class Iv:
         if isinstance(o, Dual):
             return o + self
         o = Iv.lift(o)
-        return Iv(_dn(self.lo + o.lo), _up(self.hi + o.hi))
+        return Iv(round_down(self.lo + o.lo), round_up(self.hi + o.hi))
 
     __radd__ = __add__
 
@@ -143,7 +143,7 @@ class Iv:
         if isinstance(o, Dual):
             return -o + self
         o = Iv.lift(o)
-        return Iv(_dn(self.lo - o.hi), _up(self.hi - o.lo))
+        return Iv(round_down(self.lo - o.hi), round_up(self.hi - o.lo))
 
     def __rsub__(self, o):
         return Iv.lift(o) - self
@@ -160,12 +160,12 @@ class Iv:
                 p1, p2 = a.lo * o.lo, a.hi * o.lo
                 if np.isnan(p1 + p2).any():
                     p1, p2 = np.where(np.isnan(p1), 0.0, p1), np.where(np.isnan(p2), 0.0, p2)
-                return Iv(_dn(np.minimum(p1, p2)), _up(np.maximum(p1, p2)))
+                return Iv(round_down(np.minimum(p1, p2)), round_up(np.maximum(p1, p2)))
             p = [a.lo * o.lo, a.lo * o.hi, a.hi * o.lo, a.hi * o.hi]
             if np.isnan(p[0] + p[1] + p[2] + p[3]).any():  # rare: only then look for 0 * inf
                 p = [np.where(np.isnan(q), 0.0, q) for q in p]  # 0 * inf: 0 times an unbounded real
-        return Iv(_dn(np.minimum(np.minimum(p[0], p[1]), np.minimum(p[2], p[3]))),
-                  _up(np.maximum(np.maximum(p[0], p[1]), np.maximum(p[2], p[3]))))
+        return Iv(round_down(np.minimum(np.minimum(p[0], p[1]), np.minimum(p[2], p[3]))),
+                  round_up(np.maximum(np.maximum(p[0], p[1]), np.maximum(p[2], p[3]))))
 
     __rmul__ = __mul__
 
@@ -174,8 +174,8 @@ class Iv:
         pos = self.lo > 0
         neg = self.hi < 0
         with np.errstate(divide="ignore"):
-            lo = np.where(pos | neg, _dn(1.0 / np.where(pos | neg, self.hi, 1.0)), -_INF)
-            hi = np.where(pos | neg, _up(1.0 / np.where(pos | neg, self.lo, 1.0)), _INF)
+            lo = np.where(pos | neg, round_down(1.0 / np.where(pos | neg, self.hi, 1.0)), -_INF)
+            hi = np.where(pos | neg, round_up(1.0 / np.where(pos | neg, self.lo, 1.0)), _INF)
         return Iv(lo, hi)
 
     def __truediv__(self, o):
@@ -185,8 +185,8 @@ class Iv:
         """1 / x for a quantity known to be > 0 whose enclosure may reach down to 0 or below (a loose
         lower bound): [1/hi, 1/lo], or [1/hi, inf] where lo <= 0 ([0, inf] where hi <= 0)."""
         with np.errstate(divide="ignore"):
-            lo = np.where(self.hi > 0, _dn(1.0 / np.where(self.hi > 0, self.hi, 1.0)), 0.0)
-            hi = np.where(self.lo > 0, _up(1.0 / np.where(self.lo > 0, self.lo, 1.0)), _INF)
+            lo = np.where(self.hi > 0, round_down(1.0 / np.where(self.hi > 0, self.hi, 1.0)), 0.0)
+            hi = np.where(self.lo > 0, round_up(1.0 / np.where(self.lo > 0, self.lo, 1.0)), _INF)
         return Iv(lo, hi)
 
     def abs(self):
@@ -198,7 +198,7 @@ class Iv:
 
     def sq(self):
         m, M = self.mig(), self.mag()
-        return Iv(_dn(m * m), _up(M * M))
+        return Iv(round_down(m * m), round_up(M * M))
 
     def pabs(self, e: Exp):
         """|x| ** p for p in e (any sign of p; |x| ** 0 = 1, also at x = 0)."""
@@ -257,7 +257,7 @@ class Dual:
     def __add__(self, o):
         if not isinstance(o, Dual):
             return Dual(self.v + o, self.g)
-        return Dual(self.v + o.v, [_gadd(a, b) for a, b in zip(self.g, o.g)])
+        return Dual(self.v + o.v, [grad_add(a, b) for a, b in zip(self.g, o.g)])
 
     __radd__ = __add__
 
@@ -271,7 +271,7 @@ class Dual:
         if not isinstance(o, Dual):
             o = Iv.lift(o)
             return Dual(self.v * o, [None if g is None else g * o for g in self.g])
-        return Dual(self.v * o.v, [_gadd(None if a is None else a * o.v, None if b is None else b * self.v)
+        return Dual(self.v * o.v, [grad_add(None if a is None else a * o.v, None if b is None else b * self.v)
                                    for a, b in zip(self.g, o.g)])
 
     __rmul__ = __mul__
@@ -317,7 +317,7 @@ def minus_one(e: Exp) -> Exp:
     return Exp(d.lo, d.hi, e.mid - 1.0)
 
 
-def _gadd(a, b):
+def grad_add(a, b):
     if a is None:
         return b
     if b is None:

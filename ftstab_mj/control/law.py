@@ -33,10 +33,11 @@ from typing import Any, Callable, ClassVar, NamedTuple
 
 import numpy as np
 
-from ftstab_mj.errors import ParameterError
-from ftstab_mj.validate import non_negative, one_of, open_unit_interval, positive  # noqa: F401 - the checks Params use
+from ftstab_mj.config.errors import ParameterError
+from ftstab_mj.config.validate import non_negative, one_of, open_unit_interval, positive  # noqa: F401 - the checks Params use
 
 REQUIRED = object()  # Param.default of a parameter the scenario must give
+COMPUTED = "computed"  # the value of a Param with plant_bound that stands for the plant's bound (scenario loader)
 
 
 class LawOutput(NamedTuple):
@@ -87,6 +88,13 @@ class Law:
     params: ClassVar[tuple[Param, ...]] = ()  # its own (LoopInfo.law_params)
     lyapunov: ClassVar[bool] = False  # V1, dV1_dzr are a Lyapunov function and its gradient
     native_code: ClassVar[int | None] = None  # the law's number in kernel.c (None: no native twin)
+    # What the law guarantees: metrics, report, viewers, stages and expectations read these, never its name.
+    # time_bound: Theorem 1's envelope and T(z0) = V1(z0)^(1 - alpha) / (c (1 - alpha)) hold, from the
+    # certificate of ``hong`` (c, alpha), whenever :meth:`bound_holds` says so for the plant's true bounds.
+    time_bound: ClassVar[bool] = False
+    # u_bound_from_V1: u = gamma_hat u0 + phi_hat sign(u0) with constant gamma_hat, phi_hat, and V1 does not
+    # grow along the guaranteed solution, so sup |u| over {V1 <= V1(z0)} bounds what the law asks for.
+    u_bound_from_V1: ClassVar[bool] = False
 
     r: int  # chain length the law controls
 
@@ -99,6 +107,19 @@ class Law:
         """The law for chain length r from {param name: value} (every declared param, defaults filled).
         Raises ParameterError naming the parameter."""
         raise NotImplementedError
+
+    @classmethod
+    def bound_holds(cls, params: dict, phibar: float, gamma_m: float, gamma_M: float) -> bool:
+        """Whether the law's time bound is a guarantee on a plant whose true bounds (chain units) are
+        |phi| <= phibar and gamma_m <= gamma <= gamma_M; params: the law's own (LoopInfo.law_params).
+        Only asked of a law with ``time_bound``, and only with a certificate."""
+        return False
+
+    @classmethod
+    def ultimate_bound(cls, params: dict) -> dict | None:
+        """Theorem 3's adaptation constants {kappa, delta, rate, eps} when the law has its ultimate
+        bounds (limsup V1 <= Delta, liminf V1 <= eps), else None; params as for :meth:`bound_holds`."""
+        return None
 
     @property
     def state_size(self) -> int:
@@ -133,38 +154,33 @@ class Law:
 
 # -- the registry ----------------------------------------------------------------------------------
 LAWS: dict[str, type[Law]] = {}
-_listeners: list[Callable[[], None]] = []
 
 
 def register_law(cls: type[Law]) -> type[Law]:
-    """Class decorator: add ``cls`` to the registry under ``cls.name`` (schema and `ftstab list` follow)."""
+    """Class decorator: add ``cls`` to the registry under ``cls.name`` (the scenario loader and `ftstab list`
+    read it from there). Each law owns its parameter table: two laws may use one key with two meanings."""
     if not (isinstance(cls.name, str) and cls.name.isidentifier()):
         raise TypeError(f"law class {cls.__name__} needs a name that is an identifier, got {cls.name!r}")
     if cls.name in LAWS and LAWS[cls.name] is not cls:
         raise TypeError(f"a law named {cls.name!r} is already registered ({LAWS[cls.name].__name__})")
-    known = scenario_params()
-    for p in cls.all_params():
-        if p.name == "law":
-            raise TypeError(f"law {cls.name!r}: 'law' names the law, it cannot be a parameter")
-        if p.name in known and known[p.name] != p:
-            raise TypeError(f"law {cls.name!r}: parameter {p.name!r} is declared differently by another law "
-                            "(share the same Param or choose another name)")
+    names = [p.name for p in cls.all_params()]
+    if "law" in names:
+        raise TypeError(f"law {cls.name!r}: 'law' names the law, it cannot be a parameter")
+    if len(set(names)) != len(names):
+        raise TypeError(f"law {cls.name!r}: a parameter is declared twice ({', '.join(names)})")
     LAWS[cls.name] = cls
-    for listener in _listeners:
-        listener()
     return cls
 
 
 def unregister_law(name: str) -> None:
-    """Remove a registered law (a test's toy law: global state put back); listeners are told."""
+    """Remove a registered law (a test's toy law: global state put back)."""
     del LAWS[name]
-    for listener in _listeners:
-        listener()
 
 
-def on_register(listener: Callable[[], None]) -> None:
-    """Call ``listener()`` after every registration (the scenario schema rebuilds its ControllerSpec)."""
-    _listeners.append(listener)
+def declared(name: str) -> type[Law] | None:
+    """The registered law ``name`` (a log's LoopInfo.law), or None when this process does not know it
+    (a log written with a plugin that is not loaded): nothing is then claimed for it."""
+    return LAWS.get(name)
 
 
 def law_class(name: str) -> type[Law]:
@@ -172,12 +188,3 @@ def law_class(name: str) -> type[Law]:
         return LAWS[name]
     except KeyError:
         raise ParameterError("law", "one of " + ", ".join(LAWS), name) from None
-
-
-def scenario_params() -> dict[str, Param]:
-    """Every registered law's parameters, first declaration order: the controller table's keys."""
-    out: dict[str, Param] = {}
-    for cls in LAWS.values():
-        for p in cls.all_params():
-            out.setdefault(p.name, p)
-    return out

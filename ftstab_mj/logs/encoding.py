@@ -24,7 +24,7 @@ MAX_WIDTH = 64  # values of one vector field (r, or a per-coordinate field)
 _WIRE_I64, _WIRE_LEN = 1, 2
 
 
-def _varint(v: int) -> bytes:
+def varint(v: int) -> bytes:
     out = bytearray()
     while True:
         b = v & 0x7F
@@ -48,10 +48,10 @@ class LoopLayout:
         names, formats, offsets, template = [], [], [], bytearray()
         for (name, width), number in zip(self.fields, self.numbers):
             if width == 0:
-                template += _varint(number << 3 | _WIRE_I64)
+                template += varint(number << 3 | _WIRE_I64)
                 fmt = "<f8"
             else:
-                template += _varint(number << 3 | _WIRE_LEN) + _varint(8 * width)
+                template += varint(number << 3 | _WIRE_LEN) + varint(8 * width)
                 fmt = ("<f8", (width,))
             names.append(name)
             formats.append(fmt)

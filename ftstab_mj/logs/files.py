@@ -5,7 +5,7 @@ existing file, never through a symlink) and renamed onto its path (``os.replace`
 symlink planted there instead of writing through it). What is at the path before is replaced only
 when it is one of our logs (an MCAP file written by ftstab_mj, a Rerun recording of the ftstab
 application), an empty file, or with ``force``; anything else (another program's file, a
-symlink, a directory) is refused with a one-line :class:`~ftstab_mj.errors.LogError` naming it.
+symlink, a directory) is refused with a one-line :class:`~ftstab_mj.config.errors.LogError` naming it.
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ import struct
 import threading
 import time
 
-from ftstab_mj.errors import LogError, LogWriteError
+from ftstab_mj.config.errors import LogError, LogWriteError
 
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 RRD_MAGIC = b"RRF2"

@@ -79,7 +79,7 @@ def main(argv=None) -> int:
     if len(argv) != 2:
         print("usage: python -m ftstab_mj.logs.foxglove_layout LOG.mcap OUT.json | --shipped", file=sys.stderr)
         return 2
-    from ftstab_mj.errors import FtstabError
+    from ftstab_mj.config.errors import FtstabError
     from ftstab_mj.logs.reader import read_log
 
     try:

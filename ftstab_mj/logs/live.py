@@ -257,7 +257,7 @@ def serve_rerun(grpc_port: int, web_port: int, timeout: float = 20.0) -> RerunSe
     import shutil
     import subprocess
 
-    from ftstab_mj.errors import LogError
+    from ftstab_mj.config.errors import LogError
 
     from urllib.parse import quote
 

@@ -7,7 +7,7 @@ Topics (a user-facing contract, listed in the README's "Logs" section):
   gamma_hat, phi, gamma, in chain units; and any field a loop adds), schema in the file
   (logs/encoding.py). Log time = t in ns. NaN and infinities are stored as they are.
 - ``/scenario``: the resolved scenario (JSON, one message at t = 0).
-- ``/run_info``: the rest of :class:`~ftstab_mj.records.RunInfo` (loops, period, metric settings,
+- ``/run_info``: the rest of :class:`~ftstab_mj.simulation.records.RunInfo` (loops, period, metric settings,
   MJCF, body names; JSON), so that replay rebuilds metrics and 3D without the scenario code.
 - ``/tf`` (``foxglove.FrameTransforms``) every ``pose_every`` samples and ``/scene``
   (``foxglove.SceneUpdate``, once): the bodies' poses and shapes for Foxglove's 3D panel, in the
@@ -26,12 +26,12 @@ import platform
 import numpy as np
 import orjson
 
-from ftstab_mj.errors import LogWriteError
+from ftstab_mj.config.errors import LogWriteError
 from ftstab_mj.logs.files import Reserve, create_log, discard, write_errors
-from ftstab_mj.logs.encoding import SCHEMA_NAME, LoopLayout, _varint
+from ftstab_mj.logs.encoding import SCHEMA_NAME, LoopLayout, varint
 from ftstab_mj.logs.mcap_file import McapFile
 from ftstab_mj.logs.scene import model_shapes
-from ftstab_mj.records import RunInfo, SampleBatch
+from ftstab_mj.simulation.records import RunInfo, SampleBatch
 
 ANY_OBJECT_SCHEMA = {"type": "object"}
 WHAT = "MCAP log"
@@ -44,7 +44,7 @@ def versions() -> dict[str, str]:
 
     import ftstab_mj
 
-    return {"ftstab_mj": ftstab_mj.__version__, "mujoco": mujoco.__version__, "numpy": np.__version__,
+    return {"ftstab_mj": ftstab_mj.__version__, "log_format": str(ftstab_mj.LOG_FORMAT), "mujoco": mujoco.__version__, "numpy": np.__version__,
             "python": platform.python_version()}
 
 
@@ -170,7 +170,7 @@ def frame_transforms_bytes(times_ns, names, pos, quat) -> list[bytes]:
 def _bytes_field(tag: int, text: str) -> bytes:
     """A protobuf string field (left out when empty, as proto3 does)."""
     data = text.encode()
-    return bytes([tag]) + _varint(len(data)) + data if data else b""
+    return bytes([tag]) + varint(len(data)) + data if data else b""
 
 
 class McapSink:

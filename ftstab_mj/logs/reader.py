@@ -17,7 +17,7 @@ Three outcomes:
   samples (an index, the metadata): the samples are returned with :attr:`LogData.warning` saying so.
 - **truncated** (a run killed mid-way: no footer, the last record cut): everything up to the last
   complete chunk is kept (the sink ends a chunk at every flush) and the warning says how much.
-- not a log: :class:`~ftstab_mj.errors.LogError`.
+- not a log: :class:`~ftstab_mj.config.errors.LogError`.
 
 Both encodings of ``/loop/<name>`` are read: protobuf ``ftstab.LoopSample`` (logs/encoding.py, the
 current one) and JSON (logs written by ftstab_mj 0.1); ``/tf`` as protobuf or JSON likewise.
@@ -33,8 +33,8 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from ftstab_mj.errors import LogError
-from ftstab_mj.records import LOOP_FIELDS, RunInfo
+from ftstab_mj.config.errors import LogError
+from ftstab_mj.simulation.records import LOOP_FIELDS, RunInfo
 
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 MAX_CHUNK_BYTES = 1 << 28  # 256 MiB uncompressed per chunk (the sink writes one chunk per batch, ~1 MB)
@@ -578,13 +578,13 @@ def read_log(path) -> LogData:
 
 def stream_metrics(path, progress=None):
     """(log, metrics) of the log at ``path`` read as it streams, in memory that does not grow with it:
-    its chunks feed ftstab_mj.metrics.MetricsStream as a run's batches do (the same bits as
+    its chunks feed ftstab_mj.metrics.run_metrics.MetricsStream as a run's batches do (the same bits as
     compute_metrics of its arrays), with the recorded status (interrupted when none). The log
     (LogData) keeps no samples. progress(text): a status line while a loop's certificate is
     computed (metrics.run_certificates: a log from another machine misses the cache). Raises
     LogError, DamagedLog."""
-    from ftstab_mj.metrics import MetricsStream, run_certificates
-    from ftstab_mj.records import INTERRUPTED
+    from ftstab_mj.metrics.run_metrics import MetricsStream, run_certificates
+    from ftstab_mj.simulation.records import INTERRUPTED
 
     reading, stream = LogStream(path), None
     try:

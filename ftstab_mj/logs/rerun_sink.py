@@ -36,11 +36,12 @@ import math
 
 import numpy as np
 
-from ftstab_mj.errors import LogWriteError
+from ftstab_mj.config.errors import LogWriteError
+from ftstab_mj.control.law import declared
 from ftstab_mj.logs.files import Pump, can_pump, create_log, discard, write_errors
 from ftstab_mj.logs.scene import PLANE_HALF_THICKNESS, model_shapes, quat_rotate
-from ftstab_mj.metrics import bound_applies, envelope, envelope_kind, loop_certificate, stage_reasons, time_bound
-from ftstab_mj.records import RunInfo, SampleBatch, format_table
+from ftstab_mj.metrics.run_metrics import bound_applies, envelope, envelope_kind, loop_certificate, stage_reasons, time_bound
+from ftstab_mj.simulation.records import RunInfo, SampleBatch, format_table
 
 TIMELINE = "sim_time"
 WHAT = "Rerun recording"
@@ -333,7 +334,8 @@ class RerunSink:
         ends = np.array([0.0, max(duration, self._info.period)])
         rec.send_columns(f"{base}/V1/settle_level", indexes=[rr.TimeColumn(TIMELINE, duration=ends)],
                          columns=rr.Scalars.columns(scalars=np.log10(np.full(2, level))))
-        if lp.law not in ("nominal", "robust"):
+        law = declared(lp.law)
+        if law is None or not law.time_bound:
             return
         cert = loop_certificate(lp)
         t, bound, T = envelope(cert, V1_0, duration if duration > 0 else math.inf, T=time_bound(lp, z0))

@@ -52,7 +52,7 @@ def check_untrusted_model(model_xml: str, what: str) -> None:
     Parsed with the standard library's expat (entity expansion is bounded there), never compiled."""
     import xml.etree.ElementTree as ET
 
-    from ftstab_mj.errors import LogError
+    from ftstab_mj.config.errors import LogError
 
     if len(model_xml) > MAX_MODEL_CHARS:
         raise LogError(f"{what}: expected a model of at most {MAX_MODEL_CHARS} characters, found {len(model_xml)}")
@@ -89,7 +89,7 @@ def model_shapes(model_xml: str, body_names) -> tuple[Shape, ...]:
 def _model_shapes(model_xml: str, body_names: tuple) -> tuple[Shape, ...]:
     import mujoco
 
-    from ftstab_mj.callback import control_callback
+    from ftstab_mj.plants.callback import control_callback
 
     with control_callback(None):  # compiling runs a forward pass that would call a caller's callback
         m = mujoco.MjModel.from_xml_string(model_xml)

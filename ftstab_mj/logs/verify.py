@@ -19,8 +19,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ftstab_mj.errors import LogError
-from ftstab_mj.records import COMPLETED, DIVERGED, LOOP_FIELDS, STAGE_FIELDS
+from ftstab_mj.config.errors import LogError
+from ftstab_mj.simulation.records import COMPLETED, DIVERGED, LOOP_FIELDS, STAGE_FIELDS
 
 
 @dataclass(frozen=True)

@@ -1,4 +1,6 @@
-"""MuJoCo plants that the paper's controllers stabilize: build one from plain values with make_plant.
+"""Layer 3, plants: MuJoCo plants that the laws stabilize; build one from plain values with make_plant.
+
+May import: config, control. (The disturbance signals and MuJoCo's control-callback slot live here too.)
 
     plant = make_plant("cart", {"mass": 2.0})
 
@@ -36,7 +38,7 @@ from __future__ import annotations
 import importlib
 import pkgutil
 
-from ftstab_mj.errors import ParameterError
+from ftstab_mj.config.errors import ParameterError
 from ftstab_mj.plants.base import PLANTS, Plant, register_plant
 
 for _module in pkgutil.iter_modules(__path__):  # every plant module registers its models

@@ -26,8 +26,8 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
-from ftstab_mj.errors import ParameterError
-from ftstab_mj.validate import number_problem
+from ftstab_mj.config.errors import ParameterError
+from ftstab_mj.config.validate import number_problem
 from ftstab_mj.plants.base import check_keys, load_spec, register_plant
 from ftstab_mj.plants.chain import ChainLoop, ChainPlant
 from ftstab_mj.plants.chain_bounds import Workspace

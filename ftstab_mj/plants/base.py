@@ -4,7 +4,7 @@ A plant has ``n`` control loops (one per actuated joint), all with the same chai
 The loops' joints are dofs ``dof_ids`` and their actuators ``actuator_ids`` (None: ``0..n-1``, as
 the carts are written; a ChainPlant maps any model's joints, plants/chain.py).
 
-Input mapping, per loop i, with the signals of its :class:`ftstab_mj.sim.LoopSpec`:
+Input mapping, per loop i, with the signals of its :class:`ftstab_mj.simulation.run_loop.LoopSpec`:
 
 * control: ``ctrl[i] = gain(t) * u`` (gain = the LoopSpec's ``gamma`` signal). The actuator's own
   gain ``gainprm`` is fixed by the plant (the cart: its mass, so that ``gamma`` is in chain units).
@@ -16,7 +16,7 @@ Input mapping, per loop i, with the signals of its :class:`ftstab_mj.sim.LoopSpe
 
 MuJoCo's ``userdata`` holds the controller state that must survive a save/restore of the
 simulation state (``mjSTATE_INTEGRATION`` includes it): the run loop asks :meth:`Plant.compile` for
-as many slots as its laws have state (ftstab_mj.sim).
+as many slots as its laws have state (ftstab_mj.simulation.run_loop).
 """
 
 from __future__ import annotations
@@ -28,10 +28,10 @@ from typing import Callable
 import mujoco
 import numpy as np
 
-from ftstab_mj.callback import control_callback
-from ftstab_mj.errors import ParameterError
-from ftstab_mj.resources import data_dir
-from ftstab_mj.validate import number_problem
+from ftstab_mj.plants.callback import control_callback
+from ftstab_mj.config.errors import ParameterError
+from ftstab_mj.config.resources import data_dir
+from ftstab_mj.config.validate import number_problem
 
 MODELS_DIR = data_dir("models")
 
@@ -179,7 +179,7 @@ class Plant:
         raise NotImplementedError
 
     def native_sensing(self, m):
-        """What the native control callback (ftstab_mj/native/run.py) needs to replace :meth:`sense`
+        """What the native control callback (ftstab_mj/simulation/native/run.py) needs to replace :meth:`sense`
         and :meth:`true_chain`, or None when they are not of this form (the run then uses Python):
         (adr (n, r) indices into sensordata with z[i, j] = sensordata[adr[i, j]], damping (n,),
         mass (n,)) such that the recorded phi is phi_inj - damping * qvel[i] / mass and gamma the

@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ftstab_mj.errors import ParameterError
+from ftstab_mj.config.errors import ParameterError
 from ftstab_mj.plants.base import Plant, check_keys, load_spec, number, register_plant
 
 PARAMS = ("mass", "friction", "damping", "sensor_refresh")

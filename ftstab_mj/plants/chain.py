@@ -34,7 +34,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from ftstab_mj.errors import ParameterError
+from ftstab_mj.config.errors import ParameterError
 from ftstab_mj.plants.base import Plant
 
 EPS = 1e-6  # s: half-width of the central difference of q'' along the trajectory (r = 3)
@@ -334,7 +334,7 @@ class ChainPlant(Plant):
 
 # -- helpers ---------------------------------------------------------------------------------------
 def _compile(spec):
-    from ftstab_mj.callback import control_callback
+    from ftstab_mj.plants.callback import control_callback
 
     with control_callback(None):  # compiling runs a forward pass that would call it
         return spec.copy().compile()

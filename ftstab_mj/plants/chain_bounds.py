@@ -34,7 +34,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from ftstab_mj.errors import ParameterError
+from ftstab_mj.config.errors import ParameterError
 from ftstab_mj.plants.base import model_bytes, reads_files
 
 DQ = 1e-5  # rad or m: central-difference step in q for the r = 3 derivative terms

@@ -11,12 +11,12 @@ exactly by :meth:`IdealChainPlant.step` and MuJoCo only holds and shows the stat
 * one actuator "u" on the last joint is where the run loop writes ctrl = gamma(t) u, and the
   injected disturbance goes to that joint's qfrc_applied = phi(t) (chain units, dist_scale 1).
 * one physics step of length h (``step``, in place of ``mj_step``): ``mj_forward`` (the control
-  callback samples there, ftstab_mj/sim.py, and the kinematics of the view are computed), then, with
+  callback samples there, ftstab_mj/simulation/run_loop.py, and the kinematics of the view are computed), then, with
   w = qfrc_applied + ctrl held over the step, z(t + h) = Phi(h) z(t) + G(h) w with
-  Phi_ij = h^(j-i) / (j-i)! (j >= i) and G_i = h^(r-i+1) / (r-i+1)! (ftstab_mj.ideal_chain.chain_transition),
+  Phi_ij = h^(j-i) / (j-i)! (j >= i) and G_i = h^(r-i+1) / (r-i+1)! (ftstab_mj.control.chain.chain_transition),
   which is exact for a piecewise-constant input, and time += h.
 
-So a run is the ideal chain of ftstab_mj.ideal_chain.simulate_chain with ``substeps`` = physics
+So a run is the ideal chain of ftstab_mj.simulation.ideal_chain.simulate_chain with ``substeps`` = physics
 steps per period (tests/test_plants_ideal.py compares the two), recorded and logged like any plant.
 MuJoCo's accelerations are computed by mj_forward and ignored. The integrator is exact, so
 ``sim.integrator`` must be "euler" (MuJoCo's integrators play no part); the native callback, which
@@ -28,8 +28,8 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
-from ftstab_mj.errors import ParameterError
-from ftstab_mj.ideal_chain import chain_transition
+from ftstab_mj.config.errors import ParameterError
+from ftstab_mj.control.chain import chain_transition
 from ftstab_mj.plants.base import Plant, check_keys, register_plant
 
 R_MAX = 6  # chain lengths 1..R_MAX (those the certificate handles)

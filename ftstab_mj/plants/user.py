@@ -32,8 +32,8 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from ftstab_mj.callback import control_callback
-from ftstab_mj.errors import ParameterError
+from ftstab_mj.plants.callback import control_callback
+from ftstab_mj.config.errors import ParameterError
 from ftstab_mj.plants.chain import ChainLoop, ChainPlant
 from ftstab_mj.plants.chain_bounds import Workspace
 

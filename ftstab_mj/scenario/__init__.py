@@ -1,4 +1,6 @@
-"""Scenarios: the typed schema, the strict TOML loader with --set overrides, and running a scenario.
+"""Layer 7, scenario: the typed schema, the strict TOML loader with --set overrides, and running a scenario.
+
+May import: config, control, plants, simulation, metrics, logs.
 
     sc = load_scenario("scenarios/cart_r2_robust.toml", ["sim.duration=2"])   # ScenarioError if bad
     result = run_scenario(sc, sinks)                                            # ftstab_mj.scenario.run

@@ -22,16 +22,18 @@ from pathlib import Path
 
 import numpy as np
 
-from ftstab_mj import keypath
-from ftstab_mj.control import law_class
-from ftstab_mj.disturbances import KEYS_BY_KIND, MAX_VALUE, Signal
-from ftstab_mj.errors import ParameterError, ScenarioError
-from ftstab_mj.records import MetricSettings
+from ftstab_mj.config import keypath
+from ftstab_mj.control import LAWS, law_class
+from ftstab_mj.control.law import COMPUTED
+from ftstab_mj.plants.disturbances import KEYS_BY_KIND, MAX_VALUE, Signal
+from ftstab_mj.config.errors import ParameterError, ScenarioError, describe
+from ftstab_mj.simulation.records import MetricSettings
 from ftstab_mj.scenario.schema import (
-    COMPUTED, EXTERNAL_CHECKS, SIGNAL_DERIVED, ControllerSpec, LoopSpec, PlantSpec, Scenario, SensorSpec,
+    EXTERNAL_CHECKS, SIGNAL_DERIVED, ControllerSpec, LoopSpec, PlantSpec, Scenario, SensorSpec,
 )
-from ftstab_mj.tomlfile import parse_text, read_toml
-from ftstab_mj.validate import LIMITS, Reader, describe, limit_text, whole_steps
+from ftstab_mj.scenario.plugins import load_entry_points, load_plugins
+from ftstab_mj.config.tomlfile import parse_text, read_toml
+from ftstab_mj.config.validate import LIMITS, Reader, limit_text, whole_steps
 
 _SIGNAL_ROLES = {"disturbance": 1, "gain": 2, "sensor": 3}
 
@@ -44,7 +46,41 @@ class _Reader(Reader):
             return self.signal(value, path)
         if tp is SensorSpec:  # its seed is derived, as a signal's
             return SensorSpec(**self.fields_of(tp, value, path, skip=SIGNAL_DERIVED))
+        if tp is ControllerSpec:
+            return self.controller(value, path)
         return NotImplemented
+
+    def controller(self, value, path) -> ControllerSpec:
+        """[loops.<name>.controller]: ``law``, then that law's declared parameters (Param: type, check,
+        default) and no other key."""
+        if not isinstance(value, dict):
+            raise self.error(path, "a table with the law and its parameters", describe(value))
+        if "law" not in value:
+            raise self.error(keypath.join(path, "law"), "a value (the control law: see `ftstab list`)",
+                             "nothing: the key is required")
+        law = self.string(value["law"], keypath.join(path, "law"))
+        self.known_law(value, path)
+        declared = law_class(law).all_params()
+        names = [p.name for p in declared]
+        for key in value:
+            if key != "law" and key not in names:
+                other = any(key in (p.name for p in cls.all_params()) for cls in LAWS.values())
+                raise self.error(keypath.join(path, key), f"only the {law} law's parameters ({', '.join(names) or 'none'})",
+                                 f"{key} = {describe(value[key])}" + (", a parameter of another law" if other else ""))
+        out = []
+        for p in declared:
+            where = keypath.join(path, p.name)
+            if p.name not in value:
+                if p.required:
+                    raise self.error(where, f"a value for the {law} law ({p.describe()})", "nothing: the key is required")
+                out.append((p.name, p.default))
+                continue
+            v = self.convert(p.type, value[p.name], where)
+            allowed = p.check(v) if p.check is not None else None
+            if allowed:
+                raise self.error(where, allowed, describe(value[p.name]))
+            out.append((p.name, v))
+        return ControllerSpec(law, tuple(out))
 
     def signal(self, value, path) -> Signal:
         kw = self.fields_of(Signal, value, path, skip=SIGNAL_DERIVED)
@@ -85,8 +121,16 @@ class _Reader(Reader):
             if "name" in body:
                 raise self.error(keypath.join(p, "name"), "no 'name' key (the table key is the loop name)",
                                  "a 'name' key")
+            self.known_law(body.get("controller"), keypath.join(p, "controller"))
             out.append(LoopSpec(name=name, **self.fields_of(LoopSpec, body, p, skip=("name",))))
         return tuple(out)
+
+    def known_law(self, controller, path) -> None:
+        """An unknown law is named as such, before its keys are read (they are another law's, or none)."""
+        law = controller.get("law") if isinstance(controller, dict) else None
+        if isinstance(law, str) and law not in LAWS:
+            raise self.error(keypath.join(path, "law"), f"a registered law (known: {', '.join(LAWS)}; a law of "
+                             "your own: name its file or module in plugins = [...])", f"unknown law {law!r}")
 
     def scenario(self, raw) -> Scenario:
         if not isinstance(raw, dict):
@@ -119,14 +163,12 @@ def _check(sc: Scenario, rd: _Reader) -> Scenario:
     loops = []
     for lp in sc.loops:
         p = f"loops.{lp.name}"
-        c = lp.controller
         if len(lp.z0) != r:
             raise rd.error(f"{p}.z0", f"{r} numbers (z_1..z_r, r = {r} for model {sc.plant.model!r})",
                            f"{len(lp.z0)} numbers")
         for i, zi in enumerate(lp.z0):  # MuJoCo silently resets a state beyond 1e10 to zero
             if abs(zi) > 1e9:
                 raise rd.error(f"{p}.z0[{i}]", "|z0| <= 1e9 (MuJoCo resets states beyond 1e10)", describe(zi))
-        _check_law_params(c, f"{p}.controller", rd)
         if lp.gain.state_dependent:
             raise rd.error(f"{p}.gain.kind", "a gain signal that depends on time only (worst_case is a "
                            "disturbance: it needs dV1/dz_r)", describe(lp.gain.kind))
@@ -161,7 +203,7 @@ def _check(sc: Scenario, rd: _Reader) -> Scenario:
 
 def _check_stages(lp: LoopSpec, r: int, rd: _Reader) -> None:
     """The sensor, observer and actuator of a loop fit together and fit its chain length r."""
-    from ftstab_mj.loop_stages.levant import MAX_TOTAL_ORDER
+    from ftstab_mj.simulation.stages.differentiator import MAX_TOTAL_ORDER
 
     p = f"loops.{lp.name}"
     sensor, obs = lp.sensor, lp.observer
@@ -263,24 +305,8 @@ def _computed_bounds(sc: Scenario, plant, rd: _Reader) -> Scenario:
             raise rd.error(f"loops.{loops[i].name}.controller.{name}",
                            "a number, since this plant's bound is infinite (a damped cart: damping adds -b x'/m to "
                            "phi, unbounded without a speed limit; or signals beyond float range)", f'"{COMPUTED}" with {why}')
-        loops[i] = replace(loops[i], controller=replace(loops[i].controller, **{name: value[(loops[i].name, bound)]}))
+        loops[i] = replace(loops[i], controller=loops[i].controller.with_values(**{name: value[(loops[i].name, bound)]}))
     return replace(sc, loops=tuple(loops))
-
-
-def _check_law_params(c: ControllerSpec, path: str, rd: _Reader) -> None:
-    wanted = set(c.law_params())
-    required = {p.name for p in law_class(c.law).all_params() if p.required}  # not those defaulting to None
-    for f in fields(ControllerSpec):
-        if f.default is not None:  # law parameters are the fields defaulting to None
-            continue
-        value = getattr(c, f.name)
-        if f.name in required and value is None:
-            raise rd.error(keypath.join(path, f.name), f"a value for the {c.law} law ({f.metadata['doc']})",
-                           "nothing: the key is required")
-        if f.name not in wanted and value is not None:
-            need = ", ".join(sorted(wanted)) or "no law parameter"
-            raise rd.error(keypath.join(path, f.name), f"only the {c.law} law's parameters ({need})",
-                           f"{f.name} = {value!r}, a parameter of another law")
 
 
 def _derived_seed(seed: int, loop: str, role: str) -> int:
@@ -293,6 +319,10 @@ def _derived_seed(seed: int, loop: str, role: str) -> int:
 def scenario_from_dict(raw: dict, source: str = "<scenario>", overrides: dict[str, str] | None = None) -> Scenario:
     """Validate raw scenario data (as parsed from TOML, or read back from a log) into a Scenario."""
     rd = _Reader(source, overrides)
+    load_entry_points()
+    if isinstance(raw, dict) and "plugins" in raw:  # imported before anything names what they register
+        base = Path(source).parent if source.endswith(".toml") else Path.cwd()
+        raw = {**raw, "plugins": load_plugins(raw["plugins"], base, rd.error)}
     return _check(rd.scenario(raw), rd)
 
 
@@ -370,6 +400,8 @@ def scenario_to_dict(sc: Scenario) -> dict:
     def plain(obj, skip=()):
         if isinstance(obj, Signal):  # the keys its kind uses (the loader refuses the others)
             return {"kind": obj.kind, **{k: getattr(obj, k) for k in KEYS_BY_KIND[obj.kind]}}
+        if isinstance(obj, ControllerSpec):
+            return {"law": obj.law, **{k: plain(v) for k, v in obj.params if v is not None}}
         if is_dataclass(obj):
             skip = skip + (SIGNAL_DERIVED if isinstance(obj, SensorSpec) else ())
             return {f.name: plain(getattr(obj, f.name)) for f in fields(obj)
@@ -378,7 +410,7 @@ def scenario_to_dict(sc: Scenario) -> dict:
             return [plain(x) for x in obj]
         return obj
 
-    d = plain(sc, skip=("plant", "loops"))
+    d = plain(sc, skip=("plant", "loops") + (() if sc.plugins else ("plugins",)))  # logs without plugins unchanged
     d["plant"] = {"model": sc.plant.model, **sc.plant.params}
     d["loops"] = {lp.name: plain(lp, skip=("name",)) for lp in sc.loops}
     return d

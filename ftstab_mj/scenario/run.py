@@ -1,4 +1,4 @@
-"""Turn a validated :class:`Scenario` into a plant and control loops, and run it with ftstab_mj.sim.
+"""Turn a validated :class:`Scenario` into a plant and control loops, and run it with ftstab_mj.simulation.run_loop.
 
 ``run_scenario(scenario, sinks)`` is the one way a scenario is run: ``ftstab run`` calls it with
 the log sinks, ``ftstab replay --verify`` with the scenario read back from a log
@@ -7,13 +7,15 @@ the log sinks, ``ftstab replay --verify`` with the scenario read back from a log
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import sys
 import time
 from dataclasses import dataclass
 
-from ftstab_mj import interrupts
-from ftstab_mj.errors import LogWriteError
-from ftstab_mj.records import FAILED, INTERRUPTED
+from ftstab_mj.simulation import interrupts
+from ftstab_mj.config.errors import LogWriteError
+from ftstab_mj.simulation.records import FAILED, INTERRUPTED
 from ftstab_mj.scenario.loader import scenario_from_dict, scenario_to_dict
 from ftstab_mj.scenario.schema import Scenario
 
@@ -21,21 +23,21 @@ from ftstab_mj.scenario.schema import Scenario
 @dataclass
 class ScenarioRun:
     """A finished run: the scenario, the sim's RunResult (status, message, info, and the samples when
-    kept) and the metrics handed to the sinks (ftstab_mj.metrics.MetricsStream of the batches)."""
+    kept) and the metrics handed to the sinks (ftstab_mj.metrics.run_metrics.MetricsStream of the batches)."""
 
     scenario: Scenario
-    result: object  # ftstab_mj.sim.RunResult
+    result: object  # ftstab_mj.simulation.run_loop.RunResult
     metrics: dict
 
 
 def record(run, sinks=(), metrics: bool = False, progress=None):
-    """Drive ``run`` (a ftstab_mj.sim.Run) to its end with every sink observing it: open with
+    """Drive ``run`` (a ftstab_mj.simulation.run_loop.Run) to its end with every sink observing it: open with
     run.info, write each batch, then close with the status and, with ``metrics``, the metrics streamed
-    from the batches (ftstab_mj.metrics.MetricsStream; {} without). Returns (RunResult, metrics dict).
+    from the batches (ftstab_mj.metrics.run_metrics.MetricsStream; {} without). Returns (RunResult, metrics dict).
     With ``metrics`` the loops' certificates are computed first, before any sink is opened
     (metrics.run_certificates; progress(text) now and then while one is computed).
 
-    A signal (Ctrl-C, SIGTERM, SIGHUP: ftstab_mj.interrupts) ends the run "interrupted" (the
+    A signal (Ctrl-C, SIGTERM, SIGHUP: ftstab_mj.simulation.interrupts) ends the run "interrupted" (the
     samples of the batch cut short are written, metrics computed, sinks closed). It never cuts the
     logs: opening them, handing a batch to them all (and keeping it for the metrics), and closing
     them are each done whole (interrupts.critical), and once the run is over (or stopping) later
@@ -43,7 +45,7 @@ def record(run, sinks=(), metrics: bool = False, progress=None):
     are those of the samples. Any other exception (the controller's CallbackError, a sink's
     LogWriteError) closes the sinks "failed" after writing what was recorded, and is re-raised.
     """
-    from ftstab_mj.metrics import MetricsStream, run_certificates
+    from ftstab_mj.metrics.run_metrics import MetricsStream, run_certificates
 
     if metrics:  # before any log is opened (inside interrupts.critical() a signal would wait for it)
         run_certificates(run.info, progress)
@@ -122,11 +124,13 @@ def run_scenario(sc: Scenario, sinks=(), keep_samples: bool = False, batch_size:
     samples do not depend on it). progress(text): a status line while a loop's certificate is
     computed, before the first sample (``ftstab run`` shows it on a terminal).
 
-    Raises ftstab_mj.errors.CallbackError when the controller raised (sinks closed as "failed").
+    Raises ftstab_mj.config.errors.CallbackError when the controller raised (sinks closed as "failed").
     """
     from ftstab_mj.plants import make_plant
-    from ftstab_mj.sim import Run, Simulation
+    from ftstab_mj.scenario.plugins import ensure
+    from ftstab_mj.simulation.run_loop import Run, Simulation
 
+    ensure(sc)  # a scenario received whole (a Dask worker) brings its plugins' laws and plants here
     s = sc.sim
     sim = Simulation(make_plant(sc.plant.model, sc.plant.params), sc.loops, period=s.period,
                      physics_step=s.physics_step, integrator=s.integrator, divergence_limit=s.divergence_limit)
@@ -144,14 +148,20 @@ def run_scenario_dict(raw: dict, sinks=(), source: str = "<recorded scenario>", 
 def verify_log(log):
     """``ftstab replay --verify``: re-run the scenario recorded in ``log`` (a logs.reader.LogData) and
     compare it with the log bit for bit (a logs.verify.Verification)."""
-    from ftstab_mj.errors import LogError
-    from ftstab_mj.interrupts import Interrupted, last_signal
+    from ftstab_mj.config.errors import LogError
+    from ftstab_mj.simulation.interrupts import Interrupted, last_signal
     from ftstab_mj.logs.verify import StreamingComparison, rerun_scenario
     from ftstab_mj.logs.scene import check_untrusted_model
     from ftstab_mj.plants import PLANTS
     from ftstab_mj.plants.user import recorded_model
+    from ftstab_mj.scenario.plugins import load_entry_points, load_plugins
 
     scenario = rerun_scenario(log)
+    # the plugins the log pins (by absolute path and sha256) register their laws and plants first
+    load_entry_points()
+    if scenario.get("plugins"):
+        load_plugins(scenario["plugins"], Path.cwd(), lambda key, expected, found: LogError(
+            f"{log.path}: /scenario {key}: expected {expected}, found {found}"))
     plant = scenario.get("plant")
     model = plant.get("model") if isinstance(plant, dict) else None
     user_model = isinstance(model, str) and model.endswith(".xml") and bool(log.info.model_xml)

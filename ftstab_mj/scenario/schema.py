@@ -7,7 +7,7 @@ A scenario file (``scenarios/*.toml``) maps onto :class:`Scenario`::
     [sim]                              -> SimSpec
     [metrics]                          -> records.MetricSettings
     [loops.<name>]                     -> LoopSpec    (one per actuated joint of the plant)
-    [loops.<name>.controller]          -> ControllerSpec  (keys: the registered laws' parameters)
+    [loops.<name>.controller]          -> ControllerSpec  (law + that law's declared parameters)
     [loops.<name>.disturbance]         -> disturbances.Signal (the injected disturbance)
     [loops.<name>.gain]                -> disturbances.Signal (the actuator gain factor)
     [loops.<name>.sensor]              -> SensorSpec    (what the controller reads; default: the exact z)
@@ -25,13 +25,12 @@ optional ``check`` (value -> None when fine, else a text saying what is allowed)
 from __future__ import annotations
 
 import math
-from dataclasses import MISSING, dataclass, field, make_dataclass
+from dataclasses import dataclass, field
 
-from ftstab_mj.control.law import LAWS, Law, law_class, on_register, scenario_params
-from ftstab_mj.control.laws.paper import COMPUTED, bound
-from ftstab_mj.disturbances import Signal
-from ftstab_mj.records import MetricSettings
-from ftstab_mj.validate import box_count, fraction, identifier, non_negative, one_line, one_of, positive, state_limit, time_step
+from ftstab_mj.control.law import Law, law_class
+from ftstab_mj.plants.disturbances import Signal
+from ftstab_mj.simulation.records import MetricSettings
+from ftstab_mj.config.validate import box_count, fraction, identifier, non_negative, one_line, one_of, positive, state_limit, time_step
 
 INTEGRATORS = ("euler", "implicitfast", "rk4")
 
@@ -63,79 +62,50 @@ class SimSpec:
         "the run stops as diverged when some |z_i| exceeds it (chain units)", state_limit))
 
 
-class _ControllerMethods:
-    """The methods of ControllerSpec (its fields come from the law registry: :func:`_controller_fields`)."""
+@dataclass(frozen=True)
+class ControllerSpec:
+    """One loop's control law: ``law`` (a registered law's name) and that law's parameters.
 
-    def __post_init__(self):
-        cls = LAWS.get(self.law)  # an unknown law is reported by the loader (the `law` field's check)
-        for p in cls.all_params() if cls else ():
-            if getattr(self, p.name) is None and not p.required:
-                object.__setattr__(self, p.name, p.default)
+    ``params``: (name, value) of every parameter the law declares (its ``Param``s), defaults filled
+    in, in declaration order; the loader reads them against the law's declarations, so a key of
+    another law is an error, not silently ignored. Read one as ``spec.params_dict["k"]`` or ``spec.k``.
+    A robust bound may be the word "computed": the loader replaces it by the plant's bound for the
+    scenario's signals.
+    """
 
-    def law_params(self) -> dict:
-        """This law's parameters that other laws do not share as required keys (robust: {phibar,
-        gamma_m}; adaptive: {kappa, ...}; nominal: {}): the loader requires them and rejects the others'."""
-        flds = self.__dataclass_fields__
-        cls = law_class(self.law)
-        return {p.name: getattr(self, p.name) for p in cls.all_params() if flds[p.name].default is None}
+    law: str
+    params: tuple[tuple[str, object], ...] = ()
+
+    @classmethod
+    def of(cls, law: str, **values) -> "ControllerSpec":
+        """The spec of ``law`` with ``values``, defaults filled in (ParameterError for an unknown law;
+        the loader is the one that checks the values themselves)."""
+        declared = law_class(law).all_params()
+        return cls(law, tuple((p.name, values.get(p.name, None if p.required else p.default)) for p in declared))
+
+    @property
+    def params_dict(self) -> dict:
+        return dict(self.params)
+
+    def __getattr__(self, name):  # spec.k, spec.gains: the law's parameters as attributes
+        if name.startswith("__"):
+            raise AttributeError(name)
+        for key, value in object.__getattribute__(self, "params"):
+            if key == name:
+                return value
+        raise AttributeError(f"the {self.law} law has no parameter {name!r}")
 
     def values(self) -> dict:
         """{param: value} of every parameter of this law (defaults filled in)."""
-        return {p.name: getattr(self, p.name) for p in law_class(self.law).all_params()}
+        return dict(self.params)
+
+    def with_values(self, **values) -> "ControllerSpec":
+        """A copy with some parameters replaced (the loader's "computed" bounds)."""
+        return ControllerSpec(self.law, tuple((k, values.get(k, v)) for k, v in self.params))
 
     def build(self, r: int):
         """The control law (a registered ftstab_mj.control.Law) for chain length r."""
         return law_class(self.law).from_params(r, self.values())
-
-
-def _known_law(v):
-    return None if v in LAWS else "one of " + ", ".join(repr(a) for a in LAWS)
-
-
-def _controller_fields() -> list:
-    """ControllerSpec's fields: ``law``, then every registered law's parameters (law.py Param). A key
-    every law requires is required; one every law defaults the same way has that default; any other
-    defaults to None (the loader requires it for the laws that declare it: ``law_params``)."""
-    out = [("law", str, field(metadata=meta("the control law (see `ftstab list`)", _known_law)))]
-    for name, p in scenario_params().items():
-        decls = [next((q for q in cls.all_params() if q.name == name), None) for cls in LAWS.values()]
-        users = ", ".join(cls.name for cls in LAWS.values() if any(q.name == name for q in cls.all_params()))
-        doc = meta(f"{users}: {p.describe()}", p.check)
-        if all(q is not None and q.required for q in decls):
-            out.append((name, p.type, field(metadata=doc)))
-        elif all(q is not None and q.default == p.default for q in decls):
-            out.append((name, p.type, field(default=p.default, metadata=doc)))
-        else:
-            out.append((name, p.type | None, field(default=None, metadata=doc)))
-    # required fields first (dataclass order rule); among each kind, declaration order
-    return [f for f in out if f[2].default is MISSING] + [f for f in out if f[2].default is not MISSING]
-
-
-def _build_controller_spec():
-    cls = make_dataclass("ControllerSpec", _controller_fields(), bases=(_ControllerMethods,), frozen=True)
-    cls.__module__ = __name__
-    return cls
-
-
-ControllerSpec = _build_controller_spec()
-ControllerSpec.__doc__ = """One loop's control law: ``law`` (a registered law's name) and that law's parameters.
-
-Fields are generated from the law registry (ftstab_mj/control/law.py): a parameter of another law is
-an error, not silently ignored. Robust bounds may be the word "computed": the loader replaces it by
-the plant's bound for the scenario's signals."""
-
-
-def _refresh_controller_spec() -> None:
-    """A law registered after import: rebuild the fields in place, so every module holding
-    ControllerSpec (the loader) sees the new keys."""
-    fresh = _build_controller_spec()
-    for attr in ("__dataclass_fields__", "__annotations__", "__init__", "__repr__", "__eq__", "__hash__",
-                 "__match_args__", "__dataclass_params__"):
-        if attr in fresh.__dict__:
-            setattr(ControllerSpec, attr, fresh.__dict__[attr])
-
-
-on_register(_refresh_controller_spec)
 
 
 # -- the loop stages (ftstab_mj/loop_stages): sensor, observer, actuator ---------------------------
@@ -150,7 +120,7 @@ def channel_values(v):
 
 @dataclass(frozen=True)
 class SensorSpec:
-    """What the controller reads of z (ftstab_mj/loop_stages/sensor.py). A number for noise or
+    """What the controller reads of z (ftstab_mj/simulation/stages/sensor.py). A number for noise or
     quantum applies to every measured channel; an array gives one value per channel."""
 
     measured: str = field(default="state", metadata=meta(
@@ -172,7 +142,7 @@ OBSERVER_KINDS = ("levant", "levant_filtering")
 @dataclass(frozen=True)
 class ObserverSpec:
     """Levant's robust exact differentiator rebuilding z_2..z_r from the measured z_1
-    (ftstab_mj/loop_stages/levant.py); ``levant_filtering`` is its filtering variant."""
+    (ftstab_mj/simulation/stages/differentiator.py); ``levant_filtering`` is its filtering variant."""
 
     kind: str = field(metadata=meta("the observer", one_of(*OBSERVER_KINDS)))
     L: float = field(metadata=meta("bound on |z_1^(order+1)| (chain units: m/s^(order+1))", positive))
@@ -184,7 +154,7 @@ class ObserverSpec:
 
 @dataclass(frozen=True)
 class ActuatorSpec:
-    """What the plant receives when the law asks for u (ftstab_mj/loop_stages/actuator.py), chain units."""
+    """What the plant receives when the law asks for u (ftstab_mj/simulation/stages/actuator.py), chain units."""
 
     u_max: float | None = field(default=None, metadata=meta("saturation |u| <= u_max (default: none)", positive))
     rate_max: float | None = field(default=None, metadata=meta(
@@ -200,7 +170,7 @@ class LoopSpec:
     """One control loop (one actuated joint): initial state, controller, phi(t), gamma(t).
 
     The one loop description of the project: the scenario loader builds it from [loops.<name>]
-    (controller: a ControllerSpec) and ftstab_mj.sim runs it (controller: a ControllerSpec, built
+    (controller: a ControllerSpec) and ftstab_mj.simulation.run_loop runs it (controller: a ControllerSpec, built
     for the plant's r, or a law object following ftstab_mj.control.Law).
     """
 
@@ -232,6 +202,9 @@ class Scenario:
     sim: SimSpec = field(metadata=meta("time discretisation"))
     loops: tuple[LoopSpec, ...] = field(metadata=meta("the control loops, one table per loop name"))
     seed: int = field(default=0, metadata=meta("seed of every random signal of the run", non_negative))
+    plugins: tuple[str, ...] = field(default=(), metadata=meta(
+        "Python files (relative to the scenario file) or importable modules that register laws and plants, "
+        "imported before the rest is read; the resolved scenario pins each by its sha256"))
     metrics: MetricSettings = field(default_factory=MetricSettings, metadata=meta("how metrics read the run"))
 
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import tomllib
 from pathlib import Path
 
-from ftstab_mj.resources import data_dir
+from ftstab_mj.config.resources import data_dir
 
 SCENARIO_DIR = data_dir("scenarios")
 

@@ -33,7 +33,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ftstab_mj.control.law import Law, LawOutput, Param, positive, register_law
-from ftstab_mj.errors import ParameterError
+from ftstab_mj.config.errors import ParameterError
 
 ORDERS = (1, 2, 3, 4)
 BETA = {1: (), 2: (1.0,), 3: (1.0, 2.0), 4: (0.5, 1.0, 3.0)}

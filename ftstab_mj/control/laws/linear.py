@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ftstab_mj.control.law import Law, LawOutput, Param, register_law
-from ftstab_mj.errors import ParameterError
+from ftstab_mj.config.errors import ParameterError
 
 
 def _poles(v):

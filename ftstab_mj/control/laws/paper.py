@@ -24,11 +24,10 @@ import numpy as np
 
 from ftstab_mj.control import implicit
 from ftstab_mj.control.hong import HongController
-from ftstab_mj.control.law import (Law, LawOutput, Param, non_negative, one_of, open_unit_interval, positive,
+from ftstab_mj.control.law import (COMPUTED, Law, LawOutput, Param, non_negative, one_of, open_unit_interval, positive,
                                    register_law)
-from ftstab_mj.errors import ParameterError
+from ftstab_mj.config.errors import ParameterError
 
-COMPUTED = "computed"  # a robust bound given as this word is the plant's bound (scenario loader)
 
 
 def bound(check):
@@ -92,7 +91,13 @@ class NominalLaw(_HongLaw):
     name = "nominal"
     summary = "Hong's homogeneous controller alone, u = u0 (the paper, Theorem 1)"
     native_code = 0
+    time_bound = u_bound_from_V1 = True
     hong: HongController
+
+    @classmethod
+    def bound_holds(cls, params, phibar, gamma_m, gamma_M):
+        """Theorem 1 is for the unperturbed chain: no disturbance and gamma = 1."""
+        return phibar == 0.0 and gamma_m == 1.0 and gamma_M == 1.0
 
     def output(self, z, phi_hat=0.0) -> LawOutput:
         u0, V1, dV = self.hong.evaluate(z)
@@ -121,9 +126,15 @@ class RobustLaw(_HongLaw):
         implicit.DISCRETIZATION,
     )
     native_code = 1
+    time_bound = u_bound_from_V1 = True
     hong: HongController
     phibar: float
     gamma_m: float
+
+    @classmethod
+    def bound_holds(cls, params, phibar, gamma_m, gamma_M):
+        """Theorem 2: the true bounds are within the assumed ones."""
+        return phibar <= params["phibar"] and gamma_m >= params["gamma_m"]
     discretization: str = "explicit"
     period: float | None = None
 
@@ -189,6 +200,11 @@ class AdaptiveLaw(_HongLaw):
         g_hat = self.kappa + self.delta * np.abs(u0)
         p_hat = np.broadcast_to(np.asarray(phi_hat, dtype=float), u0.shape)
         return LawOutput(g_hat * u0 + p_hat * np.sign(u0), u0, V1, dV, g_hat, p_hat)
+
+    @classmethod
+    def ultimate_bound(cls, params):
+        """Theorem 3's constants: its ultimate bounds hold for any true bounds (with a certificate)."""
+        return {key: params[key] for key in ("kappa", "delta", "rate", "eps")}
 
     def nu(self, V1):
         """nu_eps(V1) = 0.5 + 0.5 sat((|V1| - 0.75 eps) / (0.25 eps)), in [0, 1]."""

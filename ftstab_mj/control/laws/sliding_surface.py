@@ -27,7 +27,7 @@ u0 is NaN (no nominal part), gamma_hat = 1 (the laws assume a unit gain).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -35,7 +35,7 @@ from ftstab_mj.control import implicit
 from ftstab_mj.control.hong import sig
 from ftstab_mj.control.law import Law, LawOutput, Param, positive, register_law
 from ftstab_mj.control.laws.paper import EPS
-from ftstab_mj.errors import ParameterError
+from ftstab_mj.config.errors import ParameterError
 
 
 def _positive(name, value):

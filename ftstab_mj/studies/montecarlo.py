@@ -1,0 +1,198 @@
+"""Monte Carlo of the convergence-time guarantee: many initial states, per-trajectory metrics only.
+
+Theorem 1 promises that every trajectory of the nominal (or, under Theorem 2's bounds, robust)
+closed loop reaches the origin before T(z0) = V1(z0)^(1-alpha) / (c (1-alpha)). One run checks one
+z0; this module checks the promise on N initial states drawn uniformly in a box, and keeps only
+what each trajectory says about it:
+
+    row           index of the initial state in the draw
+    settle_time   first sample time from which V1 <= settle_level until the end (s; NaN: never)
+    time_bound    T(z0) from the loop's certificate (s; NaN where no certificate holds)
+    ratio         settle_time / time_bound (<= 1 where the bound holds)
+    V1_initial, V1_final, u_max_abs
+
+Two ways to run the trajectories ("on"):
+
+* ``"chain"``: the scenario's loop on the ideal chain z_r' = phi + gamma u integrated exactly
+  (ftstab_mj.simulation.ideal_chain; the native kernel runs a chunk of states at once), with the same law,
+  period, duration and signals. An ideal-chain scenario is that chain (the same bits); the carts
+  take phi and gamma in chain units, so a frictionless, undamped cart scenario has the chain as its
+  exact twin (up to MuJoCo's rounding); other plants are refused for this mode.
+* ``"plant"``: each state is a run of the scenario with ``loops.<loop>.z0`` set, on the sweep
+  engines (serial, local processes or a Dask cluster): the metrics are exactly those ``ftstab run``
+  prints for that z0.
+
+Memory stays flat: the chain mode records one chunk of states at a time and reduces it to the
+per-trajectory rows before the next; the plant mode keeps only each run's metrics.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ftstab_mj.metrics import run_metrics as mt
+from ftstab_mj.config.errors import ScenarioError
+from ftstab_mj.simulation.records import LoopInfo
+
+MAX_STATES = 10**6  # a work limit: 10^6 trajectories of a 10 s run at 1 ms is ~1e10 chain steps (hours)
+
+
+@dataclass(frozen=True)
+class Distribution:
+    """Where the initial states come from: uniform in the box |z0_i| <= box[i] (chain units), seeded."""
+
+    states: int
+    box: tuple[float, ...]
+    seed: int = 0
+
+    def draw(self) -> np.ndarray:
+        """(states, r) initial states; the same seed gives the same states on every machine."""
+        rng = np.random.default_rng([int(self.seed), 0x4D43])  # "MC": a stream of its own
+        b = np.asarray(self.box, dtype=float)
+        return rng.uniform(-1.0, 1.0, size=(self.states, len(b))) * b
+
+
+def settle_times(t: np.ndarray, V1: np.ndarray, level: float) -> np.ndarray:
+    """:func:`ftstab_mj.metrics.run_metrics.settle_time` of every column of V1 (n, B) at once; NaN for "never"."""
+    above = ~(V1 <= level)  # NaN counts as above
+    n = len(t)
+    any_above = above.any(axis=0)
+    last = n - 1 - np.argmax(above[::-1], axis=0)  # last index above (meaningless where none is)
+    out = np.where(last == n - 1, np.nan, t[np.minimum(last + 1, n - 1)])
+    return np.where(any_above, out, t[0])
+
+
+def chain_loop(sc, loop: str):
+    """(LoopSpec, plant) of the scenario's loop, refusing what has no exact ideal-chain twin."""
+    from ftstab_mj.plants import make_plant
+
+    lp = next((x for x in sc.loops if x.name == loop), None)
+    if lp is None:
+        raise ScenarioError("montecarlo", "--loop", "a loop of the scenario (" + ", ".join(x.name for x in sc.loops) + ")",
+                            repr(loop))
+    plant = make_plant(sc.plant.model, sc.plant.params)
+    twin = sc.plant.model == "ideal_chain" or sc.plant.model in ("cart", "cart_integrating") \
+        and not getattr(plant, "friction", 0.0) and not getattr(plant, "damping", 0.0)
+    if not twin or any(stage is not None for stage in (lp.sensor, lp.observer, lp.actuator)):
+        raise ScenarioError("montecarlo", "--on chain", "an ideal-chain or frictionless, undamped cart loop without "
+                            "sensor, observer or actuator models (its exact twin is the ideal chain); use --on plant",
+                            sc.plant.model)
+    return lp, plant
+
+
+def loop_info(sc, lp, law, plant) -> LoopInfo:
+    """The LoopInfo a run of this loop would record (what metrics.time_bound and bound_applies read)."""
+    phibar, gm, gM = plant.true_bounds([lp.disturbance.bounds()], [lp.gain.bounds()])
+    return LoopInfo(name=lp.name, r=law.r, law=law.name, hong=law.base_info(), law_params=law.param_values(),
+                    true_phibar=float(phibar[0]), true_gamma_m=float(gm[0]), true_gamma_M=float(gM[0]),
+                    certificate_boxes=sc.metrics.certificate_boxes)
+
+
+def _rows(info: LoopInfo, first: int, Z0, settle, V1_0, V1_end, u_max, status) -> list[dict]:
+    rows = []
+    bounds = mt.time_bound(info, Z0)  # NaN where no certificate holds
+    for j in range(len(Z0)):
+        ts = float(settle[j])
+        tb = float(bounds[j])
+        rows.append({"row": first + j, "z0": [float(x) for x in Z0[j]], "settle_time": ts, "time_bound": tb,
+                     "ratio": ts / tb if math.isfinite(ts) and math.isfinite(tb) and tb > 0 else math.nan,
+                     "V1_initial": float(V1_0[j]), "V1_final": float(V1_end[j]), "u_max_abs": float(u_max[j]),
+                     "status": status[j] if isinstance(status, list) else status})
+    return rows
+
+
+def run_chain(sc, loop: str, Z0: np.ndarray, chunk: int = 128, native="auto", progress=None) -> tuple[list[dict], LoopInfo]:
+    """Per-trajectory rows of the scenario's loop on the ideal chain from every row of Z0 (N, r)."""
+    from ftstab_mj.simulation.ideal_chain import simulate_chain
+    from ftstab_mj.simulation.run_loop import steps_per_period
+
+    lp, plant = chain_loop(sc, loop)
+    law = lp.law(plant.r)
+    info = loop_info(sc, lp, law, plant)
+    substeps = steps_per_period(sc.sim.period, sc.sim.physics_step)
+    level = sc.metrics.settle_level
+    rows = []
+    for first in range(0, len(Z0), chunk):
+        Zc = Z0[first:first + chunk]
+        run = simulate_chain(law, Zc, sc.sim.period, sc.sim.duration, phi=lp.disturbance, gamma=lp.gain,
+                             substeps=substeps, native=native)
+        settle = settle_times(run.t, run.V1, level)
+        finite = np.isfinite(run.z).all(axis=(0, 2))
+        status = ["completed" if f else "diverged" for f in finite]
+        rows += _rows(info, first, Zc, settle, run.V1[0], run.V1[-1], np.max(np.abs(run.u), axis=0), status)
+        if progress:
+            progress(min(first + chunk, len(Z0)), len(Z0))
+    return rows, info
+
+
+def run_plant(task, loop: str, Z0: np.ndarray, engine="serial", workers=1, scheduler=None, progress=None) -> list[dict]:
+    """Per-trajectory rows from runs of the scenario (sweep.row.ScenarioTask ``task``) with
+    ``loops.<loop>.z0`` set to each row of Z0, on a sweep engine; the metrics are those of ``ftstab run``."""
+    from ftstab_mj.studies.sweep.engine import execute
+
+    key = f"loops.{loop}.z0"
+    items = [(i, ((key, [float(x) for x in z]),)) for i, z in enumerate(Z0)]
+    rows, done = [None] * len(Z0), 0
+    for i, result in execute(items, task, engine, workers, scheduler):
+        m = (result or {}).get("metrics", {}).get("loops", {}).get(loop, {})
+        nan = math.nan
+
+        def num(name):
+            v = m.get(name)
+            return nan if v is None else float(v)
+
+        ts, tb = num("settle_time"), num("time_bound")
+        rows[i] = {"row": i, "z0": [float(x) for x in Z0[i]], "settle_time": ts, "time_bound": tb,
+                   "ratio": ts / tb if math.isfinite(ts) and math.isfinite(tb) and tb > 0 else nan,
+                   "V1_initial": num("V1_initial"), "V1_final": num("V1_final"), "u_max_abs": num("u_max_abs"),
+                   "bound_applies": bool(m.get("bound_applies")),
+                   "status": "lost" if result is None else result["status"]}
+        done += 1
+        if progress:
+            progress(done, len(Z0))
+    return rows
+
+
+def summarize(rows: list[dict], bound_applies: bool) -> dict:
+    """The distribution of settle_time / T(z0) and the worst case (largest ratio, or a state that never
+    settled), as plain JSON-able data. ``violations``: states whose ratio exceeds 1 while the bound applies."""
+    ratio = np.array([r["ratio"] for r in rows], dtype=float)
+    settled = np.array([math.isfinite(r["settle_time"]) for r in rows])
+    finite = ratio[np.isfinite(ratio)]
+    q = (lambda p: float(np.quantile(finite, p))) if len(finite) else (lambda p: None)
+    never = [r for r in rows if not math.isfinite(r["settle_time"])]
+    worst = never[0] if never else (max((r for r in rows if math.isfinite(r["ratio"])), key=lambda r: r["ratio"])
+                                    if len(finite) else None)
+    return {"states": len(rows), "settled": int(settled.sum()), "never_settled": len(never),
+            "bound_applies": bool(bound_applies), "with_bound": int(len(finite)),
+            "ratio": {"min": q(0.0), "median": q(0.5), "p90": q(0.9), "p99": q(0.99), "max": q(1.0)},
+            "violations": int(np.sum(finite > 1.0)) if bound_applies else None,
+            "worst": None if worst is None else {k: worst[k] for k in ("row", "z0", "settle_time", "time_bound", "ratio")}}
+
+
+def figure(rows: list[dict], summary: dict, title: str, path) -> None:
+    """Histogram of settle_time / T(z0) with the guarantee (ratio 1) marked; PNG at ``path``."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    ratio = np.array([r["ratio"] for r in rows], dtype=float)
+    ratio = ratio[np.isfinite(ratio)]
+    fig, ax = plt.subplots(figsize=(7, 4))
+    if len(ratio):
+        ax.hist(ratio, bins=min(60, max(10, int(np.sqrt(len(ratio))))), color="#4477aa")
+        ax.axvline(1.0, color="#cc3311", lw=1.5, label="guarantee: settle time = T(z0)")
+        ax.legend(loc="upper right")
+    else:
+        ax.text(0.5, 0.5, "no state has a time bound (no certificate)", ha="center", transform=ax.transAxes)
+    ax.set_xlabel("settle time / T(z0)  (dimensionless)")
+    ax.set_ylabel("initial states")
+    never = summary["never_settled"]
+    ax.set_title(f"{title}\n{summary['states']} states, {never} never settled", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)

@@ -1,0 +1,438 @@
+"""Where the runs of a sweep execute: in this process, on local processes, or on a Dask cluster.
+
+Every engine calls the same picklable ``task(index, params) -> {"status", "error", "metrics"}``
+(index: the row; params: ((key path, value), ...)) through
+:func:`guarded` and yields ``(index, result)`` as runs finish, in any order (the caller orders the
+table). A run's result depends on its parameters only, so the table does not depend on the engine.
+
+- ``serial``: one run after the other in this process.
+- ``processes``: a ``concurrent.futures`` pool of ``workers`` processes, forked from this one where
+  that is safe (:func:`start_method`: Linux, no other thread, no simulation running), else spawned.
+  A forked worker starts in milliseconds with everything this process imported and the scenarios it
+  validated (runner.py); a spawned one pays ~0.3 s of CPU to import NumPy, MuJoCo and ftstab_mj.
+- ``dask``: a ``dask.distributed`` cluster, a ``LocalCluster`` of ``workers`` single-threaded
+  processes by default, or the scheduler at ``scheduler`` (its workers must have ftstab_mj
+  installed). Processes, not threads: MuJoCo's control callback is one slot per process. A local
+  cluster's workers are forked from a forkserver (:func:`local_worker_method`) that imported
+  distributed and what a row runs once, so a worker starts without paying those imports again.
+
+One simulation at a time per process, whatever the engine: :func:`guarded` holds the process's
+:data:`ftstab_mj.plants.callback.ONE_RUN` lock for the whole run, so on an external cluster whose workers
+have several threads (``dask worker`` starts several by default) the threads of one worker take
+turns, and the table is the serial one. A per-process lock rather than worker resources (a task
+that asks for a resource no worker declares waits for ever) or a refusal of multi-threaded workers
+(the default ``dask worker`` would be refused, and a worker can join the cluster mid-sweep): it
+needs nothing from the cluster's configuration. The cost: a worker process runs one row at a time,
+so its extra threads add no speed (start workers with ``--nthreads 1 --nworkers N`` for N at once).
+
+Rows travel in chunks (:func:`chunks`): one engine task runs several rows one after the other, so the
+engine's cost per task (pickling, scheduling, a round trip: ~1 ms on processes, several ms on Dask)
+is paid once per chunk, not once per row; results still come back per row. Chunks shrink as the
+sweep goes (large first, MIN_CHUNK rows last, then one row per worker where fewer rows are left than
+MIN_CHUNK per worker), so the workers run out of rows together: with equal chunks, a worker that
+finished early waited for a whole chunk of the other's (measured up to 0.3 s of one worker idle at the
+end of 200 rows of 1 s on 2 processes, load 3); and a few long rows are never two to a chunk while a
+worker has none (2 rows on 2 workers ran one after the other). When a process worker
+dies (or is killed, stopped too long) its pool breaks and drops every unfinished chunk, the other
+workers' too: those run once more on a fresh pool; what a second broken pool leaves is lost (a
+resume retries it). On Dask the scheduler runs a dead worker's chunk again elsewhere. A worker that
+does not share this process's memory (spawned, Dask) gets the task as ``task.carrying(indices)``
+where the task has that method: what this process prepared for the chunk's rows travels with it
+(runner.ScenarioTask: the validated scenarios, so no row is validated twice).
+
+A result of ``None`` means the run was lost by the engine (its worker process died): it is not a
+result of the run and the caller must not record it as one.
+"""
+
+from __future__ import annotations
+
+import time
+import uuid
+from collections.abc import Callable, Iterable, Iterator
+from contextlib import contextmanager
+
+from ftstab_mj.plants.callback import ONE_RUN
+from ftstab_mj.config.errors import EngineError
+from ftstab_mj.simulation.records import FAILED
+
+
+ENGINES = ("serial", "processes", "dask")
+GUIDED = 2  # a chunk holds about 1 / (GUIDED x workers) of the rows not yet handed out (guided scheduling)
+MIN_CHUNK = 2  # rows per task at least, unless a worker would be left without a task (chunks())
+MAX_CHUNK = 32  # rows per task at most: a lost chunk (dead worker) costs a resume at most this many rows
+WARM_UP_ROWS_PER_WORKER = 8  # rows a worker from which the parent runs the first row before the fork (_processes)
+# a local cluster's worker not up within this (s) fails the start, which LocalCluster would otherwise wait
+# for without end (a worker process stopped while starting kept `ftstab sweep` waiting, silent, 605 s)
+WORKER_START_TIMEOUT = 60.0
+# a worker stopped (SIGSTOP, a debugger) mid-sweep for this long (s) is killed and its rows run again on a fresh
+# pool, once (processes),
+# or declared dead by the scheduler and its rows run again elsewhere (a local cluster's worker-ttl); a worker
+# running a row stays responsive (the rows run in its own thread on Dask; processes are watched from here)
+WORKER_STOP_TIMEOUT = 10.0
+WATCH_INTERVAL = 1.0  # s between two looks at the process workers' states
+LOCAL_PRELOAD = ["ftstab_mj.studies.sweep.row"]  # what a local cluster's workers import as they start
+# a cluster's periodic work, made rarer (a local cluster's; the README gives them for an external one): no
+# statistical profiler (it samples the running row's stack every 10 ms, for the dashboard), the event-loop
+# health check (20 ms by default: only warns when a loop blocks for seconds), the CPU, memory and I/O samples
+# (500 ms: for the dashboard and the heartbeats' metrics) and the memory monitor (100 ms: a worker above its
+# memory limit, "auto" = the machine's memory / workers, is stopped up to 1 s later). With Dask's defaults an
+# idle scheduler and 2 workers with their nannies take 13 % of a core, 1.4 % with these (10 s idle, load 3)
+QUIET = {"distributed.worker.profile.enabled": False, "distributed.admin.tick.interval": "1s",
+         "distributed.admin.system-monitor.interval": "5s", "distributed.worker.memory.monitor-interval": "1s"}
+
+
+def guarded(task: Callable[[int, tuple], dict], index: int, params: tuple) -> dict:
+    """``task(index, params)`` with any exception turned into a failed result; adds ``elapsed_s`` (wall s)
+    and ``started_at`` (when the run started, ``time.time()`` of the process that ran it: Unix s).
+
+    A failed result is ``{"status": "failed", "error": "<ExceptionType>: <message>", "metrics": {}}``.
+    KeyboardInterrupt is not caught: an interrupted run is not a result. The run holds
+    :data:`~ftstab_mj.plants.callback.ONE_RUN` (one simulation at a time per process); ``elapsed_s`` does not
+    count the wait for it.
+    """
+    with ONE_RUN:
+        started_at = time.time()
+        t0 = time.perf_counter()
+        try:
+            out = dict(task(index, params))
+        except Exception as exc:  # noqa: BLE001 - any failure of one run is recorded, the sweep goes on
+            out = {"status": FAILED, "error": f"{type(exc).__name__}: {exc}", "metrics": {}}
+        out["elapsed_s"] = time.perf_counter() - t0
+    out["started_at"] = started_at
+    return out
+
+
+def run_chunk(task: Callable[[int, tuple], dict], chunk: list[tuple[int, tuple]]) -> list[tuple[int, dict]]:
+    """[(index, guarded(task, index, params))] for every row of ``chunk``, one after the other."""
+    return [(i, guarded(task, i, params)) for i, params in chunk]
+
+
+def carrying(task, chunk: list[tuple[int, tuple]]):
+    """``task.carrying([row indices of chunk])`` where the task has that method, else ``task``."""
+    carry = getattr(task, "carrying", None)
+    return task if carry is None else carry([i for i, _ in chunk])
+
+
+def chunks(items: list, workers: int) -> list[list]:
+    """``items`` cut into consecutive chunks of decreasing size, in the order the workers should take them:
+    each about 1 / (GUIDED x workers) of the rows left, within [MIN_CHUNK, MAX_CHUNK], and never more than
+    1 / workers of them (so that, rows of equal cost taken by the first free worker, the sweep ends after
+    ceil(rows / workers) rows' time: no worker idles while another has a chunk of two rows to go).
+    199 rows on 2 workers: 32, 32, 32, 26, 20, 15, 11, 8, 6, 5, 3, 3, 2, 2, 1, 1 (16 tasks); 2 rows: 1, 1."""
+    out, k, w = [], 0, max(1, workers)
+    while k < len(items):
+        left = len(items) - k
+        size = min(max(MIN_CHUNK, min(MAX_CHUNK, -(-left // (GUIDED * w)))), -(-left // w))
+        out.append(items[k:k + size])
+        k += size
+    return out
+
+
+def execute(items: Iterable[tuple[int, tuple]], task: Callable[[int, tuple], dict], engine: str = "serial",
+            workers: int = 1, scheduler: str | None = None, meanwhile: Callable[[], None] | None = None,
+            ahead: StartedAhead | None = None) -> Iterator[tuple[int, dict | None]]:
+    """Run ``task`` on every (index, params); yield (index, result or None if lost) as runs finish.
+
+    ``meanwhile``: the caller's own work that can overlap the rows (``ftstab sweep``: the table writer's
+    imports); the processes and Dask engines call it once in this process, after their workers are
+    running (forked workers: after the fork, so they do not inherit what it starts), the serial one never.
+    ``ahead``: what :func:`started_ahead` yielded; the Dask engine uses the connection it made.
+    """
+    items = list(items)
+    if not items:  # nothing to run (e.g. resuming a finished sweep): start no engine
+        return
+    if engine == "serial":  # row by row: nothing to amortize, and a Ctrl-C loses no finished row
+        for i, params in items:
+            yield i, guarded(task, i, params)
+    elif engine == "processes":
+        yield from _processes(items, task, workers, meanwhile)
+    elif engine == "dask":
+        yield from _dask(items, task, workers, scheduler, meanwhile, ahead)
+    else:
+        raise EngineError(f"engine: expected one of {', '.join(ENGINES)}, found {engine!r}")
+
+
+def start_method() -> str:
+    """"fork" when forking this process is safe, else "spawn".
+
+    Safe: on Linux (macOS's system libraries do not survive a fork), with no thread but this one
+    (a child inherits the locks other threads hold, never the threads that would release them) and
+    no simulation running (a child would inherit its MuJoCo callback). A sweep forks after its
+    rows are validated and before any of them runs, so all of this holds for ``ftstab sweep``.
+    """
+    import multiprocessing
+    import sys
+    import threading
+
+    from ftstab_mj.plants.callback import slot_owner
+
+    if (sys.platform.startswith("linux") and "fork" in multiprocessing.get_all_start_methods()
+            and threading.active_count() == 1 and slot_owner() is None):
+        return "fork"
+    return "spawn"
+
+
+def _stopped(pid: int) -> bool:
+    """Whether process ``pid`` is stopped (SIGSTOP, SIGTSTP, a debugger: state T or t in /proc; Linux only)."""
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().rsplit(")", 1)[1].split()[0] in ("T", "t")
+    except (OSError, IndexError):  # gone, or no /proc (not Linux): not stopped as far as we can tell
+        return False
+
+
+class _StopWatch:
+    """Kills a pool worker that stays stopped for WORKER_STOP_TIMEOUT s: ProcessPoolExecutor would wait for
+    its chunk without end. Its death breaks the pool (BrokenProcessPool): the rows not finished run again
+    on a fresh pool (_processes). The workers are this process's multiprocessing
+    children that were not there before the pool (``before``). A stop counts only while this process
+    watched: after a gap of more than 3 WATCH_INTERVAL between two checks (this process was stopped too,
+    a Ctrl-Z of the whole group, or starved), the count starts again, so a worker read as stopped just
+    after the command's own resumption (the group's SIGCONT not yet delivered to it) is not killed."""
+
+    def __init__(self, before: set, clock: Callable[[], float] = time.monotonic):
+        self.before, self.since, self.killed, self.clock, self.last = before, {}, [], clock, None
+
+    def check(self, timeout: float) -> None:
+        """Kill every worker stopped for ``timeout`` s or more (0: every stopped worker, now)."""
+        import multiprocessing
+        import os
+        import signal
+
+        now = self.clock()
+        if self.last is not None and now - self.last > 3 * WATCH_INTERVAL:  # we saw nothing meanwhile
+            self.since = dict.fromkeys(self.since, now)
+        self.last = now
+        for proc in set(multiprocessing.active_children()) - self.before:
+            if not _stopped(proc.pid):
+                self.since.pop(proc.pid, None)
+            elif now - self.since.setdefault(proc.pid, now) >= timeout:
+                os.kill(proc.pid, signal.SIGKILL)  # a stopped process cannot act on SIGTERM
+                self.killed.append(proc.pid)
+                del self.since[proc.pid]
+
+
+def _processes(items, task, workers, meanwhile=None) -> Iterator[tuple[int, dict | None]]:
+    if start_method() == "fork" and len(items) >= WARM_UP_ROWS_PER_WORKER * workers:
+        # the first row runs here, before the fork: what each worker would do at its first row (lazy
+        # imports, the native kernel, the per-process caches: ~0.1 s of CPU) is done once and inherited.
+        # That row runs alone, so it can add one row's time to the sweep's wall: with many rows a worker
+        # that is a small share; with few (2 long rows on 2 workers) it would run them one after the other
+        (i, params), items = items[0], items[1:]
+        yield i, guarded(task, i, params)
+        if not items:
+            return
+    # a worker that dies (or is killed, stopped: _StopWatch) breaks its pool, which then drops the rows of
+    # every chunk not finished, the other workers' too: those run once more on a fresh pool, and what a
+    # second broken pool leaves unfinished is lost (a row that kills its worker each time it runs)
+    unfinished = yield from _pool(items, task, workers, meanwhile)
+    if unfinished:
+        unfinished = yield from _pool(unfinished, task, workers, last=True)
+    yield from ((i, None) for i, _ in unfinished)
+
+
+def _pool(items, task, workers, meanwhile=None, last=False):
+    """Yields (index, result) of the rows of ``items`` a pool of ``workers`` processes finished; returns the
+    items (index, params) of the chunks it did not finish (its pool broke: a worker died or was killed).
+    last: the caller runs nothing again (a stopped worker's warning then says its pool's rows are lost)."""
+    import multiprocessing
+    import sys
+    from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+
+    # checked again: a run may leave a thread behind (a log sink's), and then workers are spawned.
+    # With "fork", the pool forks all its workers at the first submit, before it starts its own thread
+    method = start_method()
+    watch = _StopWatch(set(multiprocessing.active_children()))
+    pool = ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context(method))
+    unfinished = []
+    try:  # forked workers have this process's prepared rows in their memory; spawned ones get them sent
+        futures = {pool.submit(run_chunk, task if method == "fork" else carrying(task, chunk), chunk): chunk
+                   for chunk in chunks(items, workers)}
+        if meanwhile is not None:
+            meanwhile()
+        pending = set(futures)
+        while pending:
+            done, pending = wait(pending, timeout=WATCH_INTERVAL, return_when=FIRST_COMPLETED)
+            watch.check(WORKER_STOP_TIMEOUT)
+            for fut in done:
+                if fut.exception() is not None:  # the pool broke (BrokenProcessPool): this chunk did not finish
+                    unfinished += futures[fut]
+                else:
+                    yield from fut.result()
+    finally:
+        watch.check(0)  # leaving early (Ctrl-C, an error): a stopped worker would keep the shutdown waiting
+        pool.shutdown(wait=True, cancel_futures=True)
+        for pid in watch.killed:
+            print(f"warning: sweep worker process {pid} was stopped (SIGSTOP, Ctrl-Z or a debugger) for "
+                  f"{WORKER_STOP_TIMEOUT:g} s or more: killed; the rows its pool had not finished "
+                  + ("are lost (a resume runs them)" if last else "run again on a fresh pool (once)"), file=sys.stderr)
+    return sorted(unfinished, key=lambda item: item[0])
+
+
+def local_worker_method() -> str:
+    """How a LocalCluster's nannies start their worker processes: "forkserver" where the platform has
+    it (Linux, macOS), else "spawn" (Dask's default).
+
+    The forkserver (batch_env.start_forkserver) is a fresh interpreter, started by fork + exec (safe
+    whatever threads this process runs), that imports distributed and the modules a row needs once;
+    each worker is a fork of it. Forking it is safe: it runs no thread but its main one (none of those
+    imports starts a thread; under ``ftstab`` OpenBLAS has none either, batch_env.py; where it has
+    one, OpenBLAS's own fork handlers stop and restart it). A spawned worker pays the interpreter and
+    those imports itself (~0.5 s of CPU each). The workers are the forkserver's children, not this
+    process's: getrusage(RUSAGE_CHILDREN) of the command's parent counts neither unless that parent
+    is a subreaper (the benchmark is).
+    """
+    from ftstab_mj.studies.batch_env import start_forkserver
+
+    # started here with our preload list; distributed's own, set when a nanny starts, comes too late
+    return "forkserver" if start_forkserver() else "spawn"
+
+
+def _dask_connect(workers: int, scheduler: str | None):
+    """(client, local cluster or None): a client of the scheduler at ``scheduler``, or of a new
+    LocalCluster of ``workers`` single-threaded processes. EngineError when it cannot be reached."""
+    import logging
+
+    import dask
+    from distributed import Client, LocalCluster
+
+    cluster = None
+    try:
+        if scheduler:
+            return Client(scheduler, timeout="10s"), None
+        # dashboard_address ":0": its HTTP server on a free port (None would still take 8787, and warn
+        # when another cluster holds it). preload: each worker imports what a row needs as it starts
+        # (runner.dask_setup), not when its first row arrives.
+        # death_timeout: a nanny whose worker is not up by then gives up (LocalCluster then closes all).
+        # worker_ttl: a worker silent (no heartbeat: every 0.5 s up to 10 workers) for WORKER_STOP_TIMEOUT s
+        # is restarted by its nanny and its tasks run again elsewhere; distributed's default, 5 minutes (checked
+        # every 5 minutes), kept a sweep waiting 5 to 10 minutes on a stopped worker. Ours only, not the config
+        # QUIET: the event loops' periodic work, which costs the command 5 % of a core and each worker 2 % while
+        # they wait (0.8 % and 0.25 % with it; load 4), beside the rows on the same cores (the nannies pass it on)
+        with dask.config.set({"distributed.worker.multiprocessing-method": local_worker_method(), **QUIET}):
+            cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=":0",
+                                   silence_logs=logging.ERROR, preload=LOCAL_PRELOAD,
+                                   death_timeout=WORKER_START_TIMEOUT,
+                                   scheduler_kwargs={"worker_ttl": f"{WORKER_STOP_TIMEOUT}s"})
+        return Client(cluster), cluster
+    except Exception as exc:  # noqa: BLE001 - any failure to start a local cluster is the engine's: one line
+        if cluster is not None:
+            cluster.close()
+        if scheduler:
+            if isinstance(exc, (OSError, TimeoutError)):
+                raise EngineError(f"--scheduler: expected a reachable Dask scheduler, could not reach the scheduler "
+                                  f"at {scheduler} ({_one_line(exc)})") from None
+            if isinstance(exc, ValueError):  # distributed's parse of the address: no port, an unknown scheme
+                raise EngineError(f"--scheduler: expected a Dask scheduler address such as tcp://HOST:PORT, found "
+                                  f"{scheduler!r} (ValueError: {_one_line(exc)})") from None
+            raise
+        # e.g. "Nanny failed to start." (RuntimeError) from distributed's own AssertionError when a nanny
+        # gives up on a worker still starting, or a port that cannot be bound (OSError)
+        cause = exc.__cause__ or exc
+        raise EngineError(f"--engine dask: expected a local cluster of {workers} workers up within "
+                          f"{WORKER_START_TIMEOUT:g} s, it did not start ({type(cause).__name__}: {_one_line(cause)})") from None
+
+
+def _one_line(exc: BaseException) -> str:
+    """An exception's message on one line (a worker's own error, passed on by distributed, may span several)."""
+    return " ".join(str(exc).split())
+
+
+def _dask_close(client, cluster) -> None:
+    """Close the client, then the local cluster (None: none). A failure is one line on stderr, not an
+    exception: the rows' results are in by then (the table and the exit status do not depend on it), and it
+    may run in started_ahead's thread, whose errors nobody would see."""
+    import sys
+
+    for what, thing in (("client", client), ("local cluster", cluster)):
+        if thing is None:
+            continue
+        try:
+            thing.close()
+        except Exception as exc:  # noqa: BLE001 - whatever went wrong, the sweep's results stand
+            print(f"warning: --engine dask: closing the {what} failed ({type(exc).__name__}: {_one_line(exc)}); "
+                  f"the sweep's results are not affected", file=sys.stderr)
+
+
+class StartedAhead:
+    """A Dask connection being made in a background thread for one ``with started_ahead(...)`` block, which
+    owns it (no state outside it). ``connection``: the Future of (client, local cluster or None).
+    :func:`execute` given it with the same workers and scheduler takes it over (:meth:`take`) and has it
+    closed in the same thread once its rows are done (:meth:`close_beside`)."""
+
+    def __init__(self, workers: int, scheduler: str | None):
+        from concurrent.futures import ThreadPoolExecutor
+
+        self.key = (workers, scheduler)
+        self._thread = ThreadPoolExecutor(1, thread_name_prefix="ftstab-dask-start")
+        self.connection = self._thread.submit(_dask_connect, workers, scheduler)
+        self.taken = False
+
+    def take(self, workers: int, scheduler: str | None):
+        """(client, cluster) made ahead for (workers, scheduler) (its EngineError, if it failed); None when it
+        was made for others or is already taken."""
+        if self.taken or self.key != (workers, scheduler):
+            return None
+        self.taken = True
+        return self.connection.result()
+
+    def close_beside(self, client, cluster) -> None:
+        self._thread.submit(_dask_close, client, cluster)
+
+    def finish(self) -> None:
+        """Wait for the closes submitted; close the connection if it was never taken."""
+        self._thread.shutdown(wait=True)
+        if not self.taken and self.connection.exception() is None:
+            _dask_close(*self.connection.result())
+
+
+@contextmanager
+def started_ahead(engine: str, workers: int = 1, scheduler: str | None = None):
+    """Start ``engine`` in a background thread while the block runs, so that its start-up overlaps
+    what the block does first (``ftstab sweep`` validates the rows); yields a :class:`StartedAhead`
+    (None for the engines that do not start ahead), which :func:`execute` given it (``ahead=``) takes
+    over (and reports its EngineError, if any, as it would have).
+
+    Only the Dask engine starts ahead: a LocalCluster's worker processes take ~1 s of wall to start,
+    a scheduler a round trip to answer. Serial needs nothing, and process workers are forked when the
+    rows run so that they inherit what was validated. What was started and not taken over is closed
+    at the end of the block; what :func:`execute` took over it closes in the same background thread
+    once its rows are done (a LocalCluster takes ~0.05-0.1 s to stop its workers), so the caller
+    writes its table meanwhile, and the end of the block waits for it.
+    """
+    if engine != "dask":
+        yield None
+        return
+    ahead = StartedAhead(workers, scheduler)
+    try:
+        yield ahead
+    finally:
+        ahead.finish()
+
+
+def _dask(items, task, workers, scheduler, meanwhile=None, ahead: StartedAhead | None = None
+          ) -> Iterator[tuple[int, dict | None]]:
+    from distributed import as_completed
+
+    made = ahead.take(workers, scheduler) if ahead is not None else None
+    client, cluster = made if made is not None else _dask_connect(workers, scheduler)
+    tag = uuid.uuid4().hex[:8]  # keys unique to this sweep on a shared scheduler
+    try:
+        if scheduler:  # the cluster's workers now (more may join later)
+            workers = max(1, len(client.scheduler_info().get("workers", {})))
+        futures = {client.submit(run_chunk, carrying(task, chunk), chunk, key=f"ftstab-{tag}-{chunk[0][0]}",
+                                 pure=False): chunk
+                   for chunk in chunks(items, workers)}
+        if meanwhile is not None:
+            meanwhile()
+        for fut in as_completed(futures):
+            if fut.status != "finished":  # "error": the task killed its workers (KilledWorker)
+                yield from ((i, None) for i, _ in futures[fut])
+            else:
+                yield from fut.result()
+            fut.release()
+    finally:
+        if made is not None:  # started_ahead's block waits for it, after the caller wrote its table
+            ahead.close_beside(client, cluster)
+        else:
+            _dask_close(client, cluster)

@@ -1,0 +1,142 @@
+"""Running a sweep: the runs still to do, on the chosen engine, journaled as they finish, then the table.
+
+Files in the output directory DIR, for a sweep named NAME:
+
+    NAME.sweep.json   what was run: the fingerprint of the rows and of the base (checked on --resume)
+    NAME.jsonl        the journal, one line per finished run (see table.py)
+    NAME.parquet      the table (or NAME.csv), written at the end, also after an interruption
+
+Resuming (``resume=True``) reads the journal and runs only the rows missing from it: finished
+runs, failed ones included (a failure is a result), are never redone. Runs lost by the engine
+(a dead worker) are not journaled, so a resume retries them.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import sys
+import time
+from collections import Counter
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from ftstab_mj.config.errors import EngineError, SweepError
+from ftstab_mj.simulation.records import COMPLETED
+from ftstab_mj.studies.sweep.engine import execute
+from ftstab_mj.studies.sweep.expand import Row
+from ftstab_mj.studies.sweep.table import Journal, load_writer, make_row, read_journal, write_table
+
+
+@dataclass
+class SweepOutcome:
+    """What a call of :func:`run_sweep` did. ``elapsed_s``: wall time of this call (s); ``rows_wall_s``: wall
+    time from the start of its first run to the table written (s; 0 when nothing ran), i.e. without what
+    the call spent before a row could start (an engine's start-up)."""
+
+    table: Path
+    total: int  # rows of the sweep
+    done: int  # rows in the table (finished now or earlier)
+    ran: int  # rows run by this call
+    failed: int  # rows of the table whose status is not "completed"
+    elapsed_s: float
+    lost: list[int] = field(default_factory=list)  # rows lost by the engine (not in the table)
+    interrupted: bool = False
+    statuses: dict[str, int] = field(default_factory=dict)  # {status: rows of the table with it}
+    rows_wall_s: float = 0.0
+
+
+def fingerprint(rows: list[Row], identity: dict) -> str:
+    """sha256 of the rows (index, draw, parameters) and of ``identity`` (the resolved base of every run)."""
+    data = {"identity": identity, "rows": [[r.index, r.sample, [list(p) for p in r.params]] for r in rows]}
+    return hashlib.sha256(json.dumps(data, sort_keys=True).encode()).hexdigest()
+
+
+def _say(stream, text: str) -> None:
+    if stream is not None:
+        print(text, file=stream, flush=True)
+
+
+def run_sweep(name: str, rows: list[Row], task, out_dir, identity: dict, *, engine: str = "serial",
+              workers: int = 1, scheduler: str | None = None, resume: bool = False, fmt: str = "parquet",
+              progress=sys.stderr, ahead=None) -> SweepOutcome:
+    """Run the rows not yet journaled in ``out_dir``; write the table. See the module docstring.
+
+    task: picklable, task(index, params) -> {"status", "error", "metrics"}; params: ((key path, value), ...).
+    identity: JSON-able description of what every run starts from (part of the fingerprint).
+    progress: stream for one line per finished run (None: silent).
+    ahead: the engine started ahead (engine.started_ahead), or None.
+    """
+    t0 = time.perf_counter()
+    out = Path(out_dir)
+    if out.exists() and not out.is_dir():
+        raise SweepError(str(out), "(--out)", "a directory for the sweep's table", "a file")
+    out.mkdir(parents=True, exist_ok=True)
+    header, journal_path, table_path = out / f"{name}.sweep.json", out / f"{name}.jsonl", out / f"{name}.{fmt}"
+    fp = fingerprint(rows, identity)
+    if header.exists():
+        if not resume:
+            raise SweepError(str(out), name, "an output directory without this sweep (or --resume to continue it)",
+                             f"{header.name} of an earlier run")
+        if json.loads(header.read_text(encoding="utf-8")).get("fingerprint") != fp:
+            raise SweepError(str(header), "fingerprint", "the sweep being resumed (same rows, same base scenario)",
+                             "a different sweep: its parameters or its base changed since")
+        done = read_journal(journal_path)
+    else:
+        header.write_text(json.dumps({"name": name, "rows": len(rows), "fingerprint": fp}, indent=2) + "\n",
+                          encoding="utf-8")
+        journal_path.unlink(missing_ok=True)  # a journal without its header is not ours to continue
+        done = {}
+    by_index = {r.index: r for r in rows}
+    todo = [r for r in rows if r.index not in done]
+    where = (f"engine {engine}" + (f", scheduler {scheduler}" if scheduler else
+                                   f", {workers} worker(s)" if engine != "serial" else ""))
+    _say(progress, f"sweep {name}: {len(rows)} runs, {len(done)} done earlier, {len(todo)} to run ({where})")
+    outcome = SweepOutcome(table_path, len(rows), len(done), 0, 0, 0.0)
+    journal = Journal(journal_path)
+    results = execute(((r.index, r.params) for r in todo), task, engine, workers, scheduler,
+                      meanwhile=lambda: load_writer(table_path), ahead=ahead)  # imported while the workers run
+    first_start = None  # time.time() at the start of the first run (its worker's clock: this machine's, or one kept in step)
+    try:
+        for i, result in results:
+            if result is None:
+                outcome.lost.append(i)
+                _say(progress, f"row {i}: lost (its worker process died); --resume retries it")
+                continue
+            first_start = result["started_at"] if first_start is None else min(first_start, result["started_at"])
+            r = by_index[i]
+            row = make_row(i, r.sample, r.params, result)
+            journal.append(row)
+            done[i] = row
+            outcome.ran += 1
+            left = len(todo) - outcome.ran - len(outcome.lost)
+            eta = (time.perf_counter() - t0) / outcome.ran * left
+            err = f": {row['error'].splitlines()[0]}" if row["error"] else ""
+            _say(progress, f"[{len(done)}/{len(rows)}] row {i} {row['status']} in {row['elapsed_s']:.2f} s{err}"
+                           + (f"; {left} to go, ~{eta:.0f} s left" if left else ""))
+    except KeyboardInterrupt:
+        outcome.interrupted = True
+    except EngineError:
+        if not done:  # nothing ran: leave no trace, so the same command works once the engine is there
+            journal.close()
+            header.unlink()
+            journal_path.unlink(missing_ok=True)
+        raise
+    finally:
+        results.close()  # stops the engine (pool, cluster) even when interrupted
+        journal.close()
+    if outcome.interrupted:
+        # the journal is the record: a Ctrl-C between journaling a row and noting it in `done`
+        # must not leave a table that lacks a journaled row (the resume would skip it)
+        done = read_journal(journal_path)
+    write_table(list(done.values()), table_path)
+    outcome.done = len(done)
+    outcome.statuses = dict(Counter(row["status"] for row in done.values()))
+    outcome.failed = outcome.done - outcome.statuses.get(COMPLETED, 0)
+    outcome.elapsed_s = time.perf_counter() - t0
+    if first_start is not None:
+        outcome.rows_wall_s = time.time() - first_start
+    if outcome.interrupted:
+        _say(progress, f"interrupted: {outcome.done}/{len(rows)} runs in {table_path}; --resume runs the others")
+    return outcome
+
