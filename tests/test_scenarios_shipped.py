@@ -89,6 +89,23 @@ CLAIMS = {
     "ideal_chain_r4": (None, lambda m: m["chain"]["settle_time"] <= 5.5 and m["chain"]["beat_bound"]
                        and m["chain"]["bound_applies"] and m["chain"]["certificate"]["status"] == "certified"
                        and _x_final(m["chain"]) < 1e-3),
+    # flexible joint, r = 4 (6 s): V1 < 1e-4 from 4.115 s on (T(z0) = 64.43 s), V1 1.386 -> 1.14e-5 (falls by 1.2e5),
+    # in the bounds' workspace, final |q - ref| 3.2e-3 rad
+    "flexible_joint_r4_robust": (6.0, lambda m: m["link"]["settle_time"] <= 4.5 and m["link"]["beat_bound"]
+                                 and m["link"]["bound_applies"] and m["link"]["certificate"]["status"] == "certified"
+                                 and m["link"]["V1_initial"] / m["link"]["V1_final"] >= 1e3
+                                 and _x_final(m["link"]) < 5e-3),
+    # flexible joint, r = 4, adaptive (6 s): V1 enters eps = 1e-3 at 2.775 s, then stays below 1.92e-3; Theorem 3 held;
+    # in the workspace, final |q - ref| 3.4e-3 rad
+    "flexible_joint_r4_adaptive": (6.0, lambda m: m["link"]["eps_entry_time"] <= 3.0
+                                   and m["link"]["V1_max_after_entry"] < 2.5e-3 and m["link"]["workspace_left"] == ""
+                                   and _x_final(m["link"]) < 5e-3 and _theorem3_held(m["link"])),
+    # flexible joint with an integrating motor, r = 5 (8 s): V1 < 1e-3 from 6.058 s on (T(z0) = 380.1 s), V1 13.04 ->
+    # 3.47e-4 (falls by 3.8e4), in the workspace (z_1..z_3, u), final |q - ref| 2.2e-2 rad
+    "flexible_joint_r5_robust": (8.0, lambda m: m["link"]["settle_time"] <= 6.5 and m["link"]["beat_bound"]
+                                 and m["link"]["bound_applies"] and m["link"]["certificate"]["status"] == "certified"
+                                 and m["link"]["V1_initial"] / m["link"]["V1_final"] >= 1e4
+                                 and _x_final(m["link"]) < 3e-2),
     # r = 5 exact chain, designed gains, the run's certificate within the default work limit: V1 < 1e-4
     # from 12.769 s on (T(z0) = 389.4 s from c_lower = 0.2673, the gap left open at the limit), final |z_1| 2.08e-3
     "ideal_chain_r5": (None, lambda m: m["chain"]["settle_time"] <= 13.5 and m["chain"]["beat_bound"]

@@ -202,7 +202,7 @@ def test_period_must_be_a_multiple_of_the_physics_step_and_the_error_quotes_both
 
 
 @pytest.mark.parametrize("model, params, match", [
-    ("cartt", {}, "model: expected one of arm, arm_integrating, arm3, cart, cart_integrating, ideal_chain or the path of an MJCF file"),
+    ("cartt", {}, "model: expected one of arm, arm_integrating, arm3, cart, cart_integrating, flexible_joint, ideal_chain or the path of an MJCF file"),
     ("cart", {"mas": 1.0}, "params.mas: expected a parameter of model 'cart'"),
     ("cart", {"mass": -1.0}, "params.mass: expected a finite number > 0, got -1.0"),
     ("cart", {"sensor_refresh": False}, "params.sensor_refresh"),

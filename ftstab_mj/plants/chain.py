@@ -100,6 +100,13 @@ def check_model(m: mujoco.MjModel, loops, key: str = "params.loops", constraints
         if m.actuator_trntype[a] != mujoco.mjtTrn.mjTRN_JOINT or m.actuator_trnid[a, 0] != j:
             target = (f"joint {_name(m, mujoco.mjtObj.mjOBJ_JOINT, int(m.actuator_trnid[a, 0]))!r}"
                       if m.actuator_trntype[a] == mujoco.mjtTrn.mjTRN_JOINT else "no joint directly (a tendon or site)")
+            spring = (_spring_between(m, j, int(m.actuator_trnid[a, 0]))
+                      if m.actuator_trntype[a] == mujoco.mjtTrn.mjTRN_JOINT else "")
+            if spring:  # a flexible joint: relative degree 4 (5 with an integrating actuator), not r = 2 or 3
+                raise ParameterError(f"{p}.actuator", f"an actuator driving joint {L.joint!r} directly (a user model's "
+                                     "loops are r = 2 or 3; through a spring the relative degree is 4, 5 with an "
+                                     "integrating actuator: the shipped model 'flexible_joint')",
+                                     f"{actuator!r}, which reaches it through the spring {spring!r}")
             raise ParameterError(f"{p}.actuator", f"an actuator driving joint {L.joint!r}"
                                  + (f" ({', '.join(drivers)})" if drivers else " (the model has none: an unactuated joint)"),
                                  f"{actuator!r}, which drives {target}")
@@ -159,6 +166,17 @@ def check_model(m: mujoco.MjModel, loops, key: str = "params.loops", constraints
             raise ParameterError(f"{constraints_key}.model", "a model in which no contact can happen (a contact "
                                  "changes the chain's dynamics)", pair)
     return notes, np.array(actuator_ids, dtype=np.int32)
+
+
+def _spring_between(m, j1: int, j2: int) -> str:
+    """The name of a fixed tendon with stiffness > 0 whose joints include j1 and j2 (a spring coupling
+    them), "" when there is none."""
+    for t in range(m.ntendon):
+        adr, num = int(m.tendon_adr[t]), int(m.tendon_num[t])
+        joints = {int(m.wrap_objid[w]) for w in range(adr, adr + num) if m.wrap_type[w] == mujoco.mjtWrap.mjWRAP_JOINT}
+        if {j1, j2} <= joints and np.any(np.asarray(m.tendon_stiffness[t]) > 0):
+            return _name(m, mujoco.mjtObj.mjOBJ_TENDON, t)
+    return ""
 
 
 def _contact_pair(m) -> str:

@@ -1,8 +1,8 @@
 """The ideal chain as a plant: z_i' = z_{i+1} (i < r), z_r' = phi(t) + gamma(t) u, for r = 1..6.
 
-No mechanism has this dynamics for r > 3: MuJoCo's built-in elements give a joint two integrators
-(qpos, qvel) and an actuator one more (act' = ctrl), and its couplings (inertia, tendons) are
-symmetric, so a chain z_3' = z_4 cannot be written as a MuJoCo model. Here the chain is integrated
+A mechanism gives a chain longer than 3 only through its structure (plants/flexible_joint.py: a link
+driven through a spring, r = 4 or 5, with phi from the spring and gravity); the exact chain, with
+phi and gamma chosen freely, for any r, is no MuJoCo model. Here the chain is integrated
 exactly by :meth:`IdealChainPlant.step` and MuJoCo only holds and shows the state:
 
 * the model has r bodies "z1".."zr", each on its own slide joint along x (rails 0.3 m apart in y),
