@@ -125,3 +125,21 @@ def test_format_table_shows_every_loop_metric():
         if key not in ("theorem3", "law"):
             assert key in text
     assert "Delta_held" in text
+
+
+def test_the_workspace_check_reads_every_bound_the_plant_states():
+    """A plant whose guarantee needs |z_4| and |z_5| bounded (the flexible joint at r = 5) states them;
+    leaving either is named, so the time bound is not claimed for such a run."""
+    from types import SimpleNamespace
+
+    from ftstab_mj.metrics.run_metrics import workspace_left
+
+    ws = {"z1_min": -1.0, "z1_max": 1.0, "z2_abs_max": 1.0, "z3_abs_max": 1.0, "z4_abs_max": 1.0,
+          "z5_abs_max": 1.0, "u_abs_max": 10.0}
+    loop = SimpleNamespace(workspace=ws)
+    z = np.zeros((3, 5))
+    assert workspace_left(loop, z, np.zeros(3)) == ""
+    z[1, 3], z[2, 4] = 2.0, -3.0
+    assert workspace_left(loop, z, np.zeros(3)) == "|z_4| reached 2 > 1; |z_5| reached 3 > 1"
+    del ws["z4_abs_max"]  # a bound the plant does not state is not checked
+    assert workspace_left(loop, z, np.zeros(3)) == "|z_5| reached 3 > 1"

@@ -34,8 +34,8 @@ q''''), and its bound over the workspace q in [q_min, q_max], |q'| <= qd_max, |q
 ranges of sin and cos), the rest of the box as whole intervals. So phibar is guaranteed (an upper
 bound of sup |phi| over the workspace), tight to O(1/cells); gamma's bounds are exact (gamma does
 not depend on the state). The metrics check that a run stayed in the workspace (z_1, z_2, z_3 and
-u); for r = 5, and r = 4 with damping, the bound also needs |q'''| <= qddd_max, which the run's
-metrics do not check (tests/test_plants_flexible_joint.py reads it from the log).
+u); for r = 5, and r = 4 with damping, the bound also needs |q'''| <= qddd_max (and |q''''| <=
+qdddd_max): the workspace states them (z4_abs_max, z5_abs_max) and the run's metrics check them.
 """
 
 from __future__ import annotations
