@@ -244,7 +244,7 @@ scenario = "{ROOT / "scenarios" / "cart_r2_robust.toml"}"
     task, _ = prepare(sweep, rows)
     robust, adaptive = (task.scenario(r.index, r.params).loops[0].controller for r in rows)
     assert robust.law == "robust" and (robust.phibar, robust.gamma_m) == (1.0, 0.5)
-    assert adaptive.law == "adaptive" and adaptive.phibar is None and adaptive.gamma_m is None
+    assert adaptive.law == "adaptive" and "phibar" not in adaptive.params_dict and "gamma_m" not in adaptive.params_dict
     own = ("kappa", "delta", "rate", "eta", "eps")
     assert {k: adaptive.values()[k] for k in own} == {"kappa": 0.5, "delta": 0.1, "rate": 2.0, "eta": 0.5, "eps": 1e-3}
     # the value is set typed, not printed and parsed: the base is untouched by a row
