@@ -434,8 +434,6 @@ def cmd_list(args) -> int:
 
 
 def cmd_run(args) -> int:
-    from pathlib import Path
-
     from ftstab_mj.simulation import interrupts
 
     from ftstab_mj.scenario import find_scenario, load_scenario
@@ -446,23 +444,11 @@ def cmd_run(args) -> int:
         raise UsageError(f"run {args.scenario}: expected a scenario file (.toml) or the name of a shipped "
                          "scenario, found neither (`ftstab list` shows the shipped ones)")
     sc = load_scenario(path, args.set)  # every check happens here, before any file
-    out = Path(args.out)
-    if out.exists() and not out.is_dir():
-        raise UsageError(f"--out {args.out}: expected a directory for the logs, found a file")
-    from ftstab_mj.logs import McapSink, RerunSink
-    from ftstab_mj.logs.files import check_replaceable
+    from ftstab_mj.logs.run_logs import open_run_logs
     from ftstab_mj.metrics.run_metrics import format_table
 
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise UsageError(f"--out {args.out}: expected a directory the logs can be written in, found {exc.strerror}") from None
-    paths = (out / f"{sc.name}.mcap", out / f"{sc.name}.rrd")
-    for path in paths:  # both checked before either is opened: bad input leaves no log behind
-        if path.is_dir() or (path.exists() and not os.access(path, os.W_OK)):
-            raise UsageError(f"--out {args.out}: expected {path.name} to be a writable file, found "
-                             + ("a directory" if path.is_dir() else "a read-only file"))
-        check_replaceable(path, args.force)  # a symlink or another program's file: not without --force
+    run_logs = open_run_logs(args.out, sc.name, force=args.force, what=f"--out {args.out}")  # the paths checked
+    paths = run_logs.paths
     say = (lambda *a, **k: None) if args.json else print  # --json: stdout carries the JSON only
     say(_header(sc.name, sc.description, args.set))
     say(f"  plant {sc.plant.model}, {len(sc.loops)} loop(s) ({', '.join(lp.controller.law for lp in sc.loops)}),"
@@ -474,8 +460,7 @@ def cmd_run(args) -> int:
         for note in make_plant(sc.plant.model, sc.plant.params).notes:
             print(f"note: {note}", file=sys.stderr)
     live = _live_view(args)  # servers started (or refused in one line) before any log exists
-    logs = (McapSink(paths[0], force=args.force, live=live.foxglove),
-            RerunSink(paths[1], force=args.force, live=live.rerun, grpc_port=args.grpc_port))
+    logs = run_logs.sinks(live, grpc_port=args.grpc_port)
     sinks = (*logs, ProgressSink(sc.name, sc.sim.duration))
 
     def logs_say(status: str) -> str:
