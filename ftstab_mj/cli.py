@@ -278,34 +278,20 @@ def _streamed_metrics(path):
 
 
 def cmd_replay(args) -> int:
-    from ftstab_mj.metrics.run_metrics import CERTIFICATE_DERIVED, certificate_moved, format_table
+    from ftstab_mj.metrics.run_metrics import format_table
 
     if args.rrd:  # the recording needs the samples themselves
         log = _read_log(args.log)
         metrics = _replayed_metrics(log)
     else:
         log, metrics = _streamed_metrics(args.log)
-    diff, derived = [], []
+    diff, derived, moved = [], [], []
     if log.recorded and log.recorded.get("metrics"):  # a failed run records its status without metrics
-        from ftstab_mj.config.keypath import flatten
+        from ftstab_mj.logs.recorded_metrics import compare_recorded
 
-        rec, now = flatten(log.recorded["metrics"]), flatten(metrics)
-        # a metric the recording version did not compute yet (an older log) is not a difference
-        changed = [k for k in sorted(rec) if rec.get(k) != now.get(k)]
-        # nor one derived from the certificate in a log recorded with the sampled estimate of c
-        old_cert = {name for name, m in log.recorded["metrics"].get("loops", {}).items() if "certificate" not in m}
-        derived = [k for k in changed if k.split(".")[0] == "loops" and k.split(".")[1] in old_cert
-                   and k.split(".")[2] in CERTIFICATE_DERIVED]
-        # nor, in a log whose certificate another version of the branch and bound computed (the
-        # certificate depends on the controller and that code, not on the samples), the certificate and
-        # what derives from it, as long as both brackets hold c
-        loops_now = metrics.get("loops", {})
-        moved_loops = {name for name, m in log.recorded["metrics"].get("loops", {}).items()
-                       if certificate_moved(m.get("certificate"), loops_now.get(name, {}).get("certificate"))}
-        moved = [k for k in changed if k.split(".")[0] == "loops" and k.split(".")[1] in moved_loops
-                 and k.split(".")[2] in CERTIFICATE_DERIVED + ("certificate",)]
-        diff = [f"  {k}: recorded {rec.get(k)!r}, recomputed {now.get(k)!r}" for k in changed
-                if k not in derived and k not in moved]
+        found = compare_recorded(log.recorded["metrics"], metrics)
+        derived, moved = found.derived, found.moved
+        diff = [f"  {k}: recorded {rec!r}, recomputed {now!r}" for k, rec, now in found.differ]
     if args.rrd:
         from ftstab_mj.logs.rerun_sink import write_rrd
 
