@@ -11,11 +11,7 @@ import math
 import os
 import sys
 
-from ftstab_mj.config.errors import CallbackError, FtstabError, LogWriteError
-
-
-class UsageError(FtstabError, ValueError):
-    """Bad command-line input; reported as one line with exit code 2."""
+from ftstab_mj.config.errors import CallbackError, FtstabError, LogWriteError, UsageError
 
 
 class _Parser(argparse.ArgumentParser):
@@ -542,19 +538,10 @@ def _workers(text: str) -> int:
     return n
 
 
-def _engine(args) -> str:
-    """The sweep engine of --engine, --workers N and --scheduler: dask with --scheduler; else local
-    processes when N > 1 (a local Dask cluster costs about twice their CPU on 200 short rows), serial for N = 1."""
-    engine = args.engine or ("dask" if args.scheduler else "processes" if args.workers > 1 else "serial")
-    if engine == "serial" and (args.workers > 1 or args.scheduler):
-        raise UsageError("--engine serial: expected no --workers/--scheduler (one process runs everything)")
-    if args.scheduler and engine != "dask":
-        raise UsageError(f"--scheduler: expected --engine dask, found --engine {engine}")
-    return engine
-
-
 def cmd_sweep(args) -> int:
-    engine = _engine(args)
+    from ftstab_mj.studies.sweep.engine import choose_engine
+
+    engine = choose_engine(args.engine, args.workers, args.scheduler)
     if engine == "dask" and not args.scheduler and not args.resume:  # as engine.started_ahead below
         from ftstab_mj.studies.batch_env import start_forkserver
 
@@ -617,26 +604,12 @@ def cmd_montecarlo(args) -> int:
     from pathlib import Path
 
     from ftstab_mj.studies import montecarlo as mc
-    from ftstab_mj.metrics.run_metrics import bound_applies
     from ftstab_mj.scenario import find_scenario, load_scenario
     from ftstab_mj.studies.sweep.table import write_table
 
     path = find_scenario(args.scenario)
     sc = load_scenario(path, args.set)
-    loop = args.loop or sc.loops[0].name
-    lp = next((x for x in sc.loops if x.name == loop), None)
-    if lp is None:
-        raise UsageError(f"--loop: expected a loop of {sc.name} ({', '.join(x.name for x in sc.loops)}), found {loop!r}")
-    if not 1 <= args.states <= mc.MAX_STATES:
-        raise UsageError(f"--states: expected an integer in [1, {mc.MAX_STATES}] (a work limit), found {args.states}")
-    r = len(lp.z0)
-    box = args.box or (max(abs(x) for x in lp.z0) or 1.0,) * r
-    if len(box) != r:
-        raise UsageError(f"--box: expected {r} half-widths (one per z_i of loop {loop}), found {len(box)}")
-    if args.on == "chain" and (args.workers > 1 or args.scheduler or args.engine):
-        raise UsageError("--on chain: expected no --workers/--engine/--scheduler (the native chain uses both cores itself)")
-    if args.on == "chain":
-        mc.chain_loop(sc, loop)  # a plant with no exact chain twin is refused before anything is printed
+    loop, box = mc.plan(sc, args.loop, args.states, args.box, args.on, args.workers, args.engine, args.scheduler)
     Z0 = mc.Distribution(args.states, tuple(box), args.seed).draw()
     out = Path(args.out or Path("runs") / f"{sc.name}-montecarlo")
     tty = sys.stderr.isatty()
@@ -649,20 +622,8 @@ def cmd_montecarlo(args) -> int:
     say = (lambda *a, **k: None) if args.json else print
     say(f"{sc.name}: {args.states} initial states uniform in |z_i| <= ({', '.join(f'{b:g}' for b in box)}), "
         f"seed {args.seed}, on the {'ideal chain' if args.on == 'chain' else 'plant ' + sc.plant.model}")
-    if args.on == "chain":
-        rows, info = mc.run_chain(sc, loop, Z0, progress=progress)
-        applies = bound_applies(info)
-    else:
-        from ftstab_mj.studies.sweep.row import ScenarioTask
-        from ftstab_mj.config.tomlfile import read_toml
-        from ftstab_mj.scenario.loader import apply_override
-
-        raw = read_toml(path, "scenario file (.toml)")
-        for text in args.set:
-            apply_override(raw, text, str(path))
-        engine = _engine(args)
-        rows = mc.run_plant(ScenarioTask(raw, str(path)), loop, Z0, engine, args.workers, args.scheduler, progress)
-        applies = bool(rows) and all(rw["bound_applies"] for rw in rows)  # each run's own metric
+    rows, applies = mc.run_on(args.on, sc, path, args.set, loop, Z0, args.engine, args.workers, args.scheduler,
+                              progress)
     if tty:
         sys.stderr.write("\n")
     summary = mc.summarize(rows, applies)
@@ -696,23 +657,13 @@ def cmd_compare(args) -> int:
 
     cmp = compare.load_comparison(args.comparison)
     task, items = compare.prepare(cmp, args.set)  # every row validated before any run
-    if args.workers > 1 and args.engine == "serial":
-        raise UsageError("--engine serial: expected no --workers (one process runs everything)")
-    engine = "processes" if args.workers > 1 else "serial"
+    engine = compare.engine_for(args.workers, args.engine)
     out = Path(args.out or Path("runs") / cmp.name)
     out.mkdir(parents=True, exist_ok=True)
     print(_header(cmp.name, cmp.description, args.set))
     print(f"  base {cmp.scenario}, {len(cmp.laws)} laws x {max(1, len(cmp.grid))} -> {len(items)} runs -> {out}")
     results = dict(execute(items, task, engine, args.workers))
-    rows, series = [], {}
-    for i, p in items:
-        res = results.get(i) or {"status": "lost", "error": "the worker running it died", "metrics": {}}
-        rows.append({"row": i, **compare.table_row(p, res, task.loops[0], cmp.grid_path)})
-        if res.get("series"):
-            series[p[0]] = res["series"]
-    columns = ["label"] + ([cmp.grid_path] if cmp.grid_path else []) + [
-        "status", "settle_time_z1", *[k for k in rows[0] if k.startswith("final_abs_z")], "effort_sq", "u_max_abs",
-        "chattering_tv", "chattering_du_dt_var", "chattering_zero_crossings", "chattering_band_rms", "beat_bound"]
+    rows, series, columns = compare.assemble(cmp, task, items, results)
     print(compare.format_rows(rows, columns))
     paths = [compare.write_csv(rows, out / f"{cmp.name}.csv"), write_table(rows, out / f"{cmp.name}.parquet")]
     slopes = []
