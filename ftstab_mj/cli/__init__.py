@@ -7,6 +7,9 @@ subparser to argparse's subparsers ``sub`` and sets ``func=handle``) and ``handl
 exit code). :func:`build_parser` finds them (pkgutil): adding a verb is one new module here, plus its
 test. What verbs share (argument types, the header, the progress line) is in :mod:`.common`; the
 domain logic is in the layers below (studies, figures, logs, metrics, scenario, control), never here.
+
+Layer 10 (the top, beside api.py): may import every layer below. A verb module imports them inside
+its handler, so that ``ftstab --help`` and argument errors stay cheap.
 """
 
 from __future__ import annotations
