@@ -75,10 +75,14 @@ def run(scenario_or_path, out=None, overrides=None, live=False, foxglove=None, r
     run to the wall clock. The samples and logs are the same as without them. keep_samples: False
     keeps none (Result.samples, body_pos, body_quat None): memory does not grow with the run, the
     metrics are the same.
-    Raises ScenarioError on bad input and CallbackError when the controller raised.
+    Raises ScenarioError on bad input, LogError (one line, before anything runs) when ``out`` is a
+    file or cannot be made, or a log path there is a directory, a read-only file, or holds what is
+    not an ftstab log (another program's file, a symbolic link: ``ftstab run --force`` replaces
+    them; the API never does), and CallbackError when the controller raised.
     """
-    from ftstab_mj.logs import McapSink, RerunSink
+    from ftstab_mj.logs import RerunSink
     from ftstab_mj.logs.live import LiveView
+    from ftstab_mj.logs.run_logs import open_run_logs
     from ftstab_mj.scenario import Scenario, scenario_to_dict
     from ftstab_mj.scenario.run import run_scenario
 
@@ -90,14 +94,13 @@ def run(scenario_or_path, out=None, overrides=None, live=False, foxglove=None, r
         sc = load_scenario(scenario_or_path, overrides)
     if foxglove is not None and out is None:
         raise ValueError("foxglove: expected out= as well (the Foxglove server publishes what the MCAP log gets)")
+    run_logs = None if out is None else open_run_logs(out, sc.name)  # checked before any viewer starts
     view = LiveView(live, foxglove, realtime)
     sinks, logs = list(view.sinks()), {}
     try:
-        if out is not None:
-            out = Path(out)
-            out.mkdir(parents=True, exist_ok=True)
-            logs = {"mcap": out / f"{sc.name}.mcap", "rrd": out / f"{sc.name}.rrd"}
-            sinks += [McapSink(logs["mcap"], live=view.foxglove), RerunSink(logs["rrd"], live=view.rerun)]
+        if run_logs is not None:
+            logs = {"mcap": run_logs.mcap, "rrd": run_logs.rrd}
+            sinks += run_logs.sinks(view)
         elif view.rerun:
             sinks.append(RerunSink(None, live=view.rerun))
         done = run_scenario(sc, sinks, keep_samples=keep_samples,  # Result.samples

@@ -63,3 +63,20 @@ def test_run_and_replay_without_samples_give_the_same_metrics(tmp_path):
     whole, streamed = ftstab_mj.replay(log), ftstab_mj.replay(log, keep_samples=False)
     assert len(whole.samples["cart"]["t"]) == 500 and streamed.samples is None and streamed.body_pos is None
     assert streamed.metrics == whole.metrics == kept.metrics and streamed.status == whole.status == "completed"
+
+
+def test_run_checks_its_log_paths_like_the_command(tmp_path):
+    """ftstab_mj.run(out=) goes through logs.run_logs.open_run_logs, as ``ftstab run`` does: a file as
+    the directory, or another program's file at a log path, is one LogError before anything runs."""
+    import pytest
+
+    import ftstab_mj
+    from ftstab_mj.config.errors import LogError
+
+    (tmp_path / "file").write_text("x")
+    with pytest.raises(LogError, match=r"file: expected a directory for the logs, found a file$"):
+        ftstab_mj.run("cart_r2_nominal", out=tmp_path / "file", overrides={"sim.duration": 0.01})
+    (tmp_path / "cart_r2_nominal.rrd").write_text("another program's file")
+    with pytest.raises(LogError, match=r"cart_r2_nominal.rrd: expected no file or an ftstab log there"):
+        ftstab_mj.run("cart_r2_nominal", out=tmp_path, overrides={"sim.duration": 0.01})
+    assert not (tmp_path / "cart_r2_nominal.mcap").exists()  # neither log written

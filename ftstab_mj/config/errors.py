@@ -25,6 +25,10 @@ class ScenarioError(FtstabError, ValueError):
         super().__init__(f"{source}: {path}: expected {expected}, found {found}")
 
 
+class UsageError(FtstabError, ValueError):
+    """Bad input to a command or a study (an option, a combination of options): one line, exit 2."""
+
+
 class LogError(FtstabError, ValueError):
     """A run log cannot be written, or a file given as a log is not one (or is damaged beyond recovery)."""
 

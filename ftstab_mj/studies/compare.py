@@ -47,7 +47,7 @@ from pathlib import Path
 import numpy as np
 
 from ftstab_mj.config import keypath
-from ftstab_mj.config.errors import ScenarioError, SweepError, describe
+from ftstab_mj.config.errors import ScenarioError, SweepError, UsageError, describe
 from ftstab_mj.simulation.records import COMPLETED
 from ftstab_mj.scenario.loader import apply_override, scenario_with
 from ftstab_mj.scenario.schema import identifier, one_line
@@ -227,6 +227,31 @@ def table_row(params, result: dict, loop: str, grid_path: str | None) -> dict:
         row[col] = m.get(key)
     row["elapsed_s"] = result.get("elapsed_s")
     return row
+
+
+def engine_for(workers: int, engine: str | None = None) -> str:
+    """The sweep engine of ``ftstab compare --workers N [--engine E]``: a local process pool when N > 1,
+    else serial; UsageError for --engine serial with N > 1."""
+    if workers > 1 and engine == "serial":
+        raise UsageError("--engine serial: expected no --workers (one process runs everything)")
+    return "processes" if workers > 1 else "serial"
+
+
+def assemble(cmp: Comparison, task, items, results: dict) -> tuple[list[dict], dict, list[str]]:
+    """(rows, series, columns) of the comparison table from the engine's ``results`` ({row: result}) of
+    ``items`` (:func:`prepare`): one :func:`table_row` per item (a run the engine lost is a row of status
+    "lost"), the time series of each law that has one ({label: series}: the first grid value's), and
+    the columns printed, in order."""
+    rows, series = [], {}
+    for i, p in items:
+        res = results.get(i) or {"status": "lost", "error": "the worker running it died", "metrics": {}}
+        rows.append({"row": i, **table_row(p, res, task.loops[0], cmp.grid_path)})
+        if res.get("series"):
+            series[p[0]] = res["series"]
+    columns = ["label"] + ([cmp.grid_path] if cmp.grid_path else []) + [
+        "status", "settle_time_z1", *[k for k in rows[0] if k.startswith("final_abs_z")], "effort_sq", "u_max_abs",
+        "chattering_tv", "chattering_du_dt_var", "chattering_zero_crossings", "chattering_band_rms", "beat_bound"]
+    return rows, series, columns
 
 
 def fit_slopes(rows: list[dict], grid_path: str) -> list[dict]:

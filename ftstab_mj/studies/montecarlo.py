@@ -34,7 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ftstab_mj.metrics import run_metrics as mt
-from ftstab_mj.config.errors import ScenarioError
+from ftstab_mj.config.errors import ScenarioError, UsageError
 from ftstab_mj.simulation.records import LoopInfo
 
 MAX_STATES = 10**6  # a work limit: 10^6 trajectories of a 10 s run at 1 ms is ~1e10 chain steps (hours)
@@ -81,6 +81,30 @@ def chain_loop(sc, loop: str):
                             "sensor, observer or actuator models (its exact twin is the ideal chain); use --on plant",
                             sc.plant.model)
     return lp, plant
+
+
+def plan(sc, loop: str | None, states: int, box=None, on: str = "chain", workers: int = 1, engine=None,
+         scheduler=None) -> tuple[str, tuple[float, ...]]:
+    """(loop name, box) of a Monte Carlo of scenario ``sc``, checked before anything runs or is printed:
+    ``loop`` (None: the first) one of its loops, 1 <= ``states`` <= MAX_STATES, ``box`` (None: max |z0_i|
+    of the loop on every axis, 1 where z0 = 0) one half-width per z_i, and with ``on="chain"`` no
+    workers, engine or scheduler (the native chain uses both cores itself) and a loop with an exact
+    chain twin (:func:`chain_loop`). UsageError or ScenarioError, one line naming the command's option."""
+    loop = loop or sc.loops[0].name
+    lp = next((x for x in sc.loops if x.name == loop), None)
+    if lp is None:
+        raise UsageError(f"--loop: expected a loop of {sc.name} ({', '.join(x.name for x in sc.loops)}), found {loop!r}")
+    if not 1 <= states <= MAX_STATES:
+        raise UsageError(f"--states: expected an integer in [1, {MAX_STATES}] (a work limit), found {states}")
+    r = len(lp.z0)
+    box = tuple(box or (max(abs(x) for x in lp.z0) or 1.0,) * r)
+    if len(box) != r:
+        raise UsageError(f"--box: expected {r} half-widths (one per z_i of loop {loop}), found {len(box)}")
+    if on == "chain" and (workers > 1 or scheduler or engine):
+        raise UsageError("--on chain: expected no --workers/--engine/--scheduler (the native chain uses both cores itself)")
+    if on == "chain":
+        chain_loop(sc, loop)  # a plant with no exact chain twin is refused before anything is printed
+    return loop, box
 
 
 def loop_info(sc, lp, law, plant) -> LoopInfo:
@@ -154,6 +178,28 @@ def run_plant(task, loop: str, Z0: np.ndarray, engine="serial", workers=1, sched
         if progress:
             progress(done, len(Z0))
     return rows
+
+
+def run_on(on: str, sc, path, overrides, loop: str, Z0: np.ndarray, engine=None, workers: int = 1,
+           scheduler=None, progress=None) -> tuple[list[dict], bool]:
+    """(rows, whether the time bound applies) of the states ``Z0`` of ``loop``: ``on="chain"`` on the ideal
+    chain (:func:`run_chain`; the bound as the loop's LoopInfo says), ``"plant"`` as runs of the scenario
+    file ``path`` with ``overrides`` (--set texts) on the sweep engine of ``engine``/``workers``/``scheduler``
+    (sweep.engine.choose_engine; :func:`run_plant`; the bound where every run's own metric says it applies)."""
+    if on == "chain":
+        rows, info = run_chain(sc, loop, Z0, progress=progress)
+        return rows, mt.bound_applies(info)
+    from ftstab_mj.config.tomlfile import read_toml
+    from ftstab_mj.scenario.loader import apply_override
+    from ftstab_mj.studies.sweep.engine import choose_engine
+    from ftstab_mj.studies.sweep.row import ScenarioTask
+
+    raw = read_toml(path, "scenario file (.toml)")
+    for text in overrides:
+        apply_override(raw, text, str(path))
+    engine = choose_engine(engine, workers, scheduler)
+    rows = run_plant(ScenarioTask(raw, str(path)), loop, Z0, engine, workers, scheduler, progress)
+    return rows, bool(rows) and all(rw["bound_applies"] for rw in rows)  # each run's own metric
 
 
 def summarize(rows: list[dict], bound_applies: bool) -> dict:

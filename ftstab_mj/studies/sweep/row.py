@@ -19,7 +19,6 @@ from __future__ import annotations
 import uuid
 import weakref
 from dataclasses import dataclass, field, replace
-from pathlib import Path
 
 from ftstab_mj.config import keypath
 from ftstab_mj.config.errors import ScenarioError, SweepError
@@ -74,11 +73,9 @@ class ScenarioTask:
         sc = kept[1] if kept is not None and kept[0] == params else self.scenario(index, params)
         sinks = ()
         if self.logs:
-            from ftstab_mj.logs import McapSink, RerunSink
+            from ftstab_mj.logs.run_logs import open_run_logs
 
-            Path(self.logs).mkdir(parents=True, exist_ok=True)
-            stem = Path(self.logs) / f"row{index:05d}"
-            sinks = (McapSink(stem.with_suffix(".mcap")), RerunSink(stem.with_suffix(".rrd")))
+            sinks = open_run_logs(self.logs, f"row{index:05d}").sinks()  # a refused path: this row fails
         run = run_scenario(sc, sinks)
         status = run.result.status
         if status == INTERRUPTED:  # the run loop caught Ctrl-C: not a result of this row, stop the sweep
