@@ -1,0 +1,183 @@
+"""Nothing hangs (issue 44, H1): process-pool workers killed mid-row, and the command killed under its
+workers, through the real CLI. Every command runs in a process group of its own, with a deadline, and the
+group is killed at the end whatever happened, so a failure here cannot hang the suite."""
+
+import os
+import signal
+import subprocess
+import time
+
+import pytest
+
+from conftest import ROOT, start_cli
+from ftstab_mj.studies.sweep.table import read_table
+
+DEADLINE = 60  # s: any command here ends well within this, or the test fails (and kills its group)
+
+
+def children(pid: int) -> list[int]:
+    """The live (not zombie) child processes of ``pid`` (Linux /proc)."""
+    out = []
+    for entry in os.listdir("/proc"):
+        if not entry.isdigit():
+            continue
+        try:
+            with open(f"/proc/{entry}/stat") as f:
+                fields = f.read().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        if int(fields[1]) == pid and fields[0] != "Z":
+            out.append(int(entry))
+    return sorted(out)
+
+
+def alive(pid: int) -> bool:
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().rsplit(")", 1)[1].split()[0] != "Z"
+    except OSError:
+        return False
+
+
+def cpu_s(pid: int) -> float:
+    """User + system CPU time of ``pid`` (s)."""
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            fields = f.read().rsplit(")", 1)[1].split()
+    except OSError:  # gone
+        return 0.0
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def wait_for(predicate, timeout, what):
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        value = predicate()
+        if value:
+            return value
+        time.sleep(0.05)
+    raise AssertionError(f"timed out after {timeout} s waiting for {what}")
+
+
+def start(*args):
+    """The CLI in a process group of its own (killed by :func:`finish`)."""
+    return start_cli(*args, start_new_session=True)
+
+
+def finish(proc, timeout=DEADLINE):
+    """(returncode, stdout, stderr) within ``timeout`` s; the group is killed in any case."""
+    try:
+        out, err = proc.communicate(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        os.killpg(proc.pid, signal.SIGKILL)
+        out, err = proc.communicate()
+        raise AssertionError(f"the command did not end within {timeout} s (hang); stderr:\n{err[-3000:]}") from None
+    finally:
+        try:
+            os.killpg(proc.pid, signal.SIGKILL)  # whatever the command left in its group
+        except ProcessLookupError:
+            pass
+    return proc.returncode, out, err
+
+
+def busy_workers(proc, n=2, cpu=0.3):
+    """The command's ``n`` pool workers, once each has run ``cpu`` s of CPU (they are mid-row)."""
+    def running():
+        workers = children(proc.pid)
+        return workers if len(workers) >= n and all(cpu_s(w) >= cpu for w in workers) else None
+
+    return wait_for(running, 30, f"{n} workers running rows")
+
+
+def comparison(tmp_path, duration=12.0):
+    """2 laws x 2 periods of the r = 2 cart; each row ~1 s and returns its time series (a result larger than
+    a pipe's buffer: the pool of issue 44 hung on a worker blocked writing it)."""
+    path = tmp_path / "tiny.toml"
+    path.write_text(f'''name = "tiny"
+description = "two laws, two periods"
+scenario = "{ROOT / "scenarios" / "cart_r2_robust.toml"}"
+steps_per_period = 5
+[set]
+"sim.duration" = {duration}
+[grid]
+"sim.period" = [1e-3, 2e-3]
+[[laws]]
+label = "robust"
+controller = {{ law = "robust", k = -0.2, gains = [1.0, 2.0], phibar = 1.0, gamma_m = 0.7 }}
+[[laws]]
+label = "linear"
+controller = {{ law = "linear", poles = [-3.0, -3.0] }}
+''')
+    return path
+
+
+def sweep(tmp_path, duration=15.0, samples=2):
+    path = tmp_path / "small.toml"
+    path.write_text(f'''name = "small"
+description = "killed workers"
+scenario = "{ROOT / "scenarios" / "cart_r2_robust.toml"}"
+seed = 3
+samples = {samples}
+[set]
+"sim.duration" = {duration}
+"sim.physics_step" = 1e-4
+[grid]
+"loops.cart.disturbance.amplitude" = [0.4, 0.8]
+[draw]
+"loops.cart.z0[0]" = {{uniform = [-1.0, 1.0]}}
+''')
+    return path
+
+
+@pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGTERM], ids=["SIGKILL", "SIGTERM"])
+def test_compare_whose_worker_is_killed_mid_row_reruns_its_rows_and_ends(tmp_path, sig):
+    """A worker of `ftstab compare --workers 2` killed mid-row: the pool sees the death at once, says which
+    rows did not finish, runs them again on a fresh pool, and the table is whole (SIGKILL: the pool used to
+    wait for ever on the other worker, blocked writing its result; SIGTERM: the worker's inherited handler
+    recorded its row "interrupted", a result that is none)."""
+    out = tmp_path / "o"
+    proc = start("compare", comparison(tmp_path), "--workers", "2", "--out", out)
+    try:
+        victim = busy_workers(proc)[0]
+        os.kill(victim, sig)
+    finally:
+        code, stdout, err = finish(proc)
+    assert code == 0, err
+    assert "warning: a worker process died; rows " in err and "run again on a fresh pool (once)" in err, err
+    t = read_table(out / "tiny.parquet")
+    assert t["status"] == ["completed"] * 4, (t["status"], err)
+
+
+def test_sweep_whose_worker_is_killed_mid_row_reruns_its_rows_and_ends(tmp_path):
+    out = tmp_path / "o"
+    proc = start("sweep", sweep(tmp_path), "--workers", "2", "--out", out)
+    try:
+        os.kill(busy_workers(proc)[-1], signal.SIGKILL)
+    finally:
+        code, _, err = finish(proc)
+    assert code == 0, err
+    assert "warning: a worker process died; row" in err, err
+    assert read_table(out / "small.parquet")["status"] == ["completed"] * 4
+
+
+@pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGTERM], ids=["SIGKILL", "SIGTERM"])
+def test_killing_the_command_leaves_none_of_its_workers_behind(tmp_path, sig):
+    """SIGKILL of `ftstab sweep` under its 2 pool workers: they die with it (a parent-death signal), not
+    orphaned to run on; SIGTERM: the command stops at once (it does not wait for the workers' rows), exit 143,
+    with the finished rows in the table."""
+    out = tmp_path / "o"
+    proc = start("sweep", sweep(tmp_path, duration=60.0), "--workers", "2", "--out", out)
+    try:
+        workers = busy_workers(proc)
+        t0 = time.monotonic()
+        os.kill(proc.pid, sig)
+        proc.wait(timeout=DEADLINE)
+        stopped = time.monotonic() - t0
+        wait_for(lambda: not any(alive(w) for w in workers), 10, f"the workers {workers} to die with the command")
+    finally:
+        code, _, err = finish(proc)
+    if sig == signal.SIGTERM:
+        assert code == 143 and "interrupted" in err and stopped < 10, (code, stopped, err)
+        assert (out / "small.parquet").exists()
+    else:
+        assert code == -signal.SIGKILL
