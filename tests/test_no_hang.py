@@ -181,3 +181,40 @@ def test_killing_the_command_leaves_none_of_its_workers_behind(tmp_path, sig):
         assert (out / "small.parquet").exists()
     else:
         assert code == -signal.SIGKILL
+
+
+def run_to_end(*args, timeout=DEADLINE):
+    return finish(start(*args), timeout)
+
+
+@pytest.mark.parametrize("how", ["serve", "url"])
+def test_a_rerun_port_held_by_a_socket_that_never_answers_is_refused_in_one_line(tmp_path, how):
+    """H2: `--live serve --grpc-port P` with P held by another program (here a loopback socket that listens and
+    never accepts) took P for a running Rerun server and streamed into it for ever; so did `--live URL` of
+    it. Now: exit 2 within seconds, one line naming the port, no log written."""
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        s.listen()
+        port = s.getsockname()[1]
+        live = (["--live", "serve", "--grpc-port", port, "--web-port", "0"] if how == "serve"
+                else ["--live", f"rerun+http://127.0.0.1:{port}/proxy"])
+        t0 = time.monotonic()
+        code, _, err = run_to_end("run", "cart_r2_robust", "--set", "sim.duration=0.2", "--out", tmp_path / "o", *live,
+                                  timeout=30)
+    assert code == 2 and time.monotonic() - t0 < 20, (code, err)
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: --") and str(port) in lines[0], err
+    assert not list((tmp_path / "o").glob("*.mcap")) and not list((tmp_path / "o").glob("*.rrd"))
+
+
+def test_a_live_url_where_nothing_listens_is_refused_in_one_line(tmp_path):
+    from conftest import free_port
+
+    port = free_port()
+    code, _, err = run_to_end("run", "cart_r2_robust", "--set", "sim.duration=0.2", "--out", tmp_path / "o",
+                              "--live", f"rerun+http://127.0.0.1:{port}/proxy", timeout=30)
+    assert code == 2 and err.strip().splitlines() == [
+        f"error: --live rerun+http://127.0.0.1:{port}/proxy: expected a Rerun viewer or server answering on "
+        f"127.0.0.1:{port}, found none (nothing listens, or no gRPC answer within 2 s)"], err
