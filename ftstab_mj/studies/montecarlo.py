@@ -37,7 +37,7 @@ from ftstab_mj.metrics import run_metrics as mt
 from ftstab_mj.config.errors import ScenarioError
 from ftstab_mj.simulation.records import LoopInfo
 
-MAX_STATES = 10**6  # a work limit: 10^6 trajectories of a 10 s run at 1 ms is ~1e10 chain steps (hours)
+from ftstab_mj.config.limits import MAX_STATES  # noqa: E402,F401 - 10^6 trajectories of a 10 s run at 1 ms: hours
 
 
 @dataclass(frozen=True)
