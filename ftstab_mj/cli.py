@@ -699,9 +699,14 @@ def cmd_montecarlo(args) -> int:
     write_table(rows, out / "montecarlo.parquet")
     (out / "montecarlo.json").write_text(json.dumps(summary, indent=2) + "\n")
     mc.figure(rows, summary, f"{sc.name}: settle time / T(z0)", out / "montecarlo.png")
+    from ftstab_mj.studies.compare import lost_line
+
+    lost = lost_line(rows, "state")  # W4: states lost by dead workers are an error
+    if lost:
+        print(lost, file=sys.stderr)
     if args.json:
         print(json.dumps(summary, indent=2))
-        return 0
+        return 1 if lost else 0
     q = summary["ratio"]
     print(f"  settled {summary['settled']}/{summary['states']}; with a time bound {summary['with_bound']}"
           f" (bound {'applies' if applies else 'does not apply'})")
@@ -714,6 +719,7 @@ def cmd_montecarlo(args) -> int:
         print(f"  worst: state {w['row']}, z0 = [{', '.join(f'{x:.17g}' for x in w['z0'])}],"
               f" settle time {w['settle_time']:.6g} s, T(z0) {w['time_bound']:.6g} s")
     print(f"table: {out / 'montecarlo.parquet'}  summary: {out / 'montecarlo.json'}  figure: {out / 'montecarlo.png'}")
+    return 1 if lost else 0
 
 
 def cmd_compare(args) -> int:
@@ -753,7 +759,10 @@ def cmd_compare(args) -> int:
     paths += compare.draw_figures(cmp, rows, slopes, series, out)
     for path in paths:
         print(f"wrote {path}")
-    return 0
+    lost = compare.lost_line(rows)  # W4: rows lost by dead workers are an error, not a quiet 'lost' cell
+    if lost:
+        print(lost, file=sys.stderr)
+    return 1 if lost else 0
 
 
 def build_parser() -> argparse.ArgumentParser:

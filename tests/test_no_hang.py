@@ -218,3 +218,93 @@ def test_a_live_url_where_nothing_listens_is_refused_in_one_line(tmp_path):
     assert code == 2 and err.strip().splitlines() == [
         f"error: --live rerun+http://127.0.0.1:{port}/proxy: expected a Rerun viewer or server answering on "
         f"127.0.0.1:{port}, found none (nothing listens, or no gRPC answer within 2 s)"], err
+
+
+KILLER = '''
+"""A PD law that kills its process (SIGKILL) at its first evaluation when kp = 666: a row that always loses its
+worker."""
+import os
+import signal
+from dataclasses import dataclass
+
+import numpy as np
+
+from ftstab_mj.control import Law, LawOutput, Param, register_law
+
+
+@register_law
+@dataclass(frozen=True)
+class KillerPD(Law):
+    name = "killer_pd"
+    summary = "u = -kp z1 - kd z2; kp = 666 kills the process"
+    params = (Param("kp", float, "proportional gain", "1/s^2"), Param("kd", float, "derivative gain", "1/s"))
+    r: int
+    kp: float
+    kd: float
+
+    @classmethod
+    def from_params(cls, r, values):
+        return cls(r, float(values["kp"]), float(values["kd"]))
+
+    def evaluate(self, z, state):
+        if self.kp == 666.0:
+            os.kill(os.getpid(), signal.SIGKILL)
+        z = np.asarray(z, dtype=float)
+        u = -self.kp * z[..., 0] - self.kd * z[..., 1]
+        nan = np.full_like(u, np.nan)
+        return LawOutput(u, nan, nan, nan, nan, nan)
+'''
+
+
+def killer_folder(tmp_path, kp):
+    (tmp_path / "killer.py").write_text(KILLER)
+    (tmp_path / "pd.toml").write_text(f'''name = "pd"
+description = "a PD law that may kill its worker"
+plugins = ["{tmp_path / "killer.py"}"]
+[plant]
+model = "cart"
+[sim]
+duration = 0.5
+period = 0.002
+physics_step = 0.001
+[loops.cart]
+z0 = [1.0, 0.0]
+[loops.cart.controller]
+law = "killer_pd"
+kp = {kp}
+kd = 10.0
+''')
+    (tmp_path / "cmp.toml").write_text('''name = "cmp"
+description = "one law whose rows always kill their worker"
+scenario = "pd.toml"
+[grid]
+"sim.period" = [0.002, 0.004]
+[[laws]]
+label = "pd"
+controller = { law = "killer_pd", kp = 25.0, kd = 10.0 }
+[[laws]]
+label = "killer"
+controller = { law = "killer_pd", kp = 666.0, kd = 10.0 }
+''')
+    return tmp_path
+
+
+def test_compare_rows_lost_by_dead_workers_are_an_error_naming_them(tmp_path):
+    """W4: the rows of a law that kills its worker each time are run twice then lost: `ftstab compare` said
+    nothing and exited 0. Now exit 1 and a line naming the lost rows."""
+    d = killer_folder(tmp_path, 25.0)
+    code, _, err = run_to_end("compare", d / "cmp.toml", "--workers", "2", "--out", d / "o")
+    assert code == 1, err
+    line = next(x for x in err.splitlines() if x.startswith("error: "))
+    assert " run(s) lost by dead worker processes (rows " in line and "2, 3)" in line, err
+    t = read_table(d / "o" / "cmp.parquet")
+    # a broken pool drops the chunks of every worker: the healthy rows may be lost with the killer's
+    assert t["status"][2:] == ["lost", "lost"] and len(t["status"]) == 4
+
+
+def test_montecarlo_states_lost_by_dead_workers_are_an_error(tmp_path):
+    d = killer_folder(tmp_path, 666.0)
+    code, _, err = run_to_end("montecarlo", d / "pd.toml", "--on", "plant", "--states", "4", "--workers", "2",
+                              "--out", d / "o")
+    assert code == 1, err
+    assert "error: 4 state(s) lost by dead worker processes (rows 0, 1, 2, 3)" in err, err

@@ -228,6 +228,18 @@ def table_row(params, result: dict, loop: str, grid_path: str | None) -> dict:
     return row
 
 
+def lost_line(rows: list[dict], what: str = "run") -> str | None:
+    """None when no row was lost by the engine, else the one line an exit status 1 comes with, naming the rows
+    (a table with lost rows is not the comparison asked for: issue 44, W4). Rows are dicts with "row" and
+    "status" (compare's and montecarlo's tables)."""
+    lost = [row["row"] for row in rows if row.get("status") == "lost"]
+    if not lost:
+        return None
+    shown = ", ".join(map(str, lost[:20])) + (f" and {len(lost) - 20} more" if len(lost) > 20 else "")
+    return (f"error: {len(lost)} {what}(s) lost by dead worker processes (rows {shown}); the table marks them "
+            f"'lost', run the command again for them")
+
+
 def fit_slopes(rows: list[dict], grid_path: str) -> list[dict]:
     """Per law and per z_i: the least-squares slope of log10 max |z_i| against log10 of the grid value
     (completed rows with a positive accuracy only; None with fewer than 2 points)."""
