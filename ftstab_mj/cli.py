@@ -695,9 +695,10 @@ def cmd_montecarlo(args) -> int:
     if tty:
         sys.stderr.write("\n")
     summary = mc.summarize(rows, applies)
+    applies = summary["bound_applies"]  # not where V1(z0) overflows
     out.mkdir(parents=True, exist_ok=True)
     write_table(rows, out / "montecarlo.parquet")
-    (out / "montecarlo.json").write_text(json.dumps(summary, indent=2) + "\n")
+    (out / "montecarlo.json").write_text(mc.json_text(summary) + "\n")
     mc.figure(rows, summary, f"{sc.name}: settle time / T(z0)", out / "montecarlo.png")
     from ftstab_mj.studies.compare import lost_line
 
@@ -705,11 +706,13 @@ def cmd_montecarlo(args) -> int:
     if lost:
         print(lost, file=sys.stderr)
     if args.json:
-        print(json.dumps(summary, indent=2))
+        print(mc.json_text(summary))
         return 1 if lost else 0
     q = summary["ratio"]
     print(f"  settled {summary['settled']}/{summary['states']}; with a time bound {summary['with_bound']}"
           f" (bound {'applies' if applies else 'does not apply'})")
+    if summary["bound_note"]:
+        print(f"  note: {summary['bound_note']}")
     if q["median"] is not None:
         print(f"  settle time / T(z0): min {q['min']:.3g}, median {q['median']:.3g}, p99 {q['p99']:.3g}, max {q['max']:.3g}")
     if summary["violations"] is not None:

@@ -100,3 +100,16 @@ def test_the_limits_table_is_one_table_that_the_checks_read():
     assert reader.MAX_CHUNK_BYTES is limits.MAX_CHUNK_BYTES and montecarlo.MAX_STATES is limits.MAX_STATES
     assert plugins.MAX_PLUGIN_BYTES is limits.MAX_PLUGIN_BYTES
     assert limits.markdown().count("\n") == len(limits.TABLE) + 1
+
+
+def test_montecarlo_with_v1_beyond_float_range_says_no_bound_and_writes_strict_json(tmp_path):
+    """W3: `--box 1e150` made V1(z0) infinite; the command said "bound applies" and wrote a bare NaN (not JSON)."""
+    import json
+
+    proc = run_cli("montecarlo", "cart_r2_nominal", "--states", "4", "--box", "1e150,1e150", "--set", "sim.duration=0.5",
+                   "--out", tmp_path, timeout=DEADLINE)
+    assert proc.returncode == 0, proc.stderr
+    assert "(bound does not apply)" in proc.stdout and "V1(z0) is not a finite number for 4 state(s)" in proc.stdout
+    summary = json.loads((tmp_path / "montecarlo.json").read_text(),
+                         parse_constant=lambda c: pytest.fail(f"{c} in the JSON"))
+    assert summary["bound_applies"] is False and summary["worst"]["settle_time"] is None
