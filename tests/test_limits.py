@@ -113,3 +113,25 @@ def test_montecarlo_with_v1_beyond_float_range_says_no_bound_and_writes_strict_j
     summary = json.loads((tmp_path / "montecarlo.json").read_text(),
                          parse_constant=lambda c: pytest.fail(f"{c} in the JSON"))
     assert summary["bound_applies"] is False and summary["worst"]["settle_time"] is None
+
+
+def test_a_comparison_grid_with_a_repeated_value_is_refused_and_a_fit_counts_each_value_once(tmp_path):
+    """W1: `ftstab compare` fitted its log-log slope through duplicate grid values (counted twice)."""
+    from ftstab_mj.studies.compare import fit_slopes
+
+    path = tmp_path / "dup.toml"
+    path.write_text(f'''name = "dup"
+description = "a grid value twice"
+scenario = "{ROOT / "scenarios" / "cart_r2_robust.toml"}"
+[grid]
+"sim.period" = [1e-3, 2e-3, 1e-3]
+[[laws]]
+label = "linear"
+controller = {{ law = "linear", poles = [-3.0, -3.0] }}
+''')
+    proc = run_cli("compare", path, "--out", tmp_path / "o", timeout=DEADLINE)
+    one_line_error(proc, str(path), 'grid."sim.period": expected distinct values', "repeated 0.001")
+    rows = [{"label": "a", "status": "completed", "h": h, "final_abs_z1": y}
+            for h, y in ((1.0, 1.0), (10.0, 10.0), (100.0, 1000.0), (100.0, 1000.0))]
+    # through (0, 0), (1, 1), (2, 3) in logs: 1.5; the repeated point counted twice gave 1.545
+    assert fit_slopes(rows, "h")[0]["slope_z1"] == pytest.approx(1.5)
