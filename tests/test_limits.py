@@ -135,3 +135,12 @@ controller = {{ law = "linear", poles = [-3.0, -3.0] }}
             for h, y in ((1.0, 1.0), (10.0, 10.0), (100.0, 1000.0), (100.0, 1000.0))]
     # through (0, 0), (1, 1), (2, 3) in logs: 1.5; the repeated point counted twice gave 1.545
     assert fit_slopes(rows, "h")[0]["slope_z1"] == pytest.approx(1.5)
+
+
+@pytest.mark.parametrize("delay", ["1e9", "1e8", "1000001"])
+def test_a_sensor_delay_beyond_its_limit_is_one_line_before_anything_is_allocated(tmp_path, delay):
+    """R2: a delay of 1e9 ended in a traceback, 1e8 allocated 3.2 GB before anything ran."""
+    proc = run_cli("run", "cart_r2_output_feedback", "--set", f"loops.cart.sensor.delay={delay}", "--out", tmp_path / "o",
+                   timeout=DEADLINE)
+    one_line_error(proc, "loops.cart.sensor.delay: expected a whole number of control periods in [0, 1e6]")
+    assert not (tmp_path / "o").exists()
