@@ -27,7 +27,6 @@ MAX_DELAY_SAMPLES = 10 ** 6  # a sensor delay, in control periods (the delay lin
 # -- studies -----------------------------------------------------------------------------------------------------
 MAX_SWEEP_ROWS = 10 ** 5  # runs of one sweep (grid points x samples), and a sweep's samples
 MAX_STATES = 10 ** 6  # initial states of one `montecarlo`
-MAX_COMPARE_ROWS = 10 ** 4  # runs of one `compare` (laws x grid values)
 
 TABLE = (  # (what, limit as the user reads it, where it is checked, why)
     ("scenario, sweep, comparison, expectations file", "1 MiB", "read", "ours are 2 kB to 100 kB"),
@@ -44,9 +43,7 @@ TABLE = (  # (what, limit as the user reads it, where it is checked, why)
     ("sensor delay", "10^6 control periods", "scenario load", "the delay line holds every delayed sample"),
     ("sweep runs (grid x samples)", "10^5", "sweep load", "a journal line per run"),
     ("montecarlo --states", "10^6", "before any run", "hours of computing"),
-    ("compare runs (laws x grid values)", "10^4", "comparison load", "a table row and a figure point per run"),
-    ("file names (scenario, sweep, comparison names)", "200 characters, a file name, never a path",
-     "load and API", "NAME.sweep.json must fit in 255 bytes; nothing is written outside --out"),
+    ("scenario, sweep, comparison names", "200 characters", "load", "NAME.sweep.json must fit in 255 bytes"),
 )
 
 
