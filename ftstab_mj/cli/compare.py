@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import sys
+
 from ftstab_mj.cli.common import header, workers
 
 VERB = "compare"
@@ -59,4 +61,7 @@ def handle(args) -> int:
     paths += draw_figures(cmp.name, rows, cmp.grid_path, cmp.grid, series, out, where)
     for path in paths:
         print(f"wrote {path}")
-    return 0
+    lost = compare.lost_line(rows)  # rows lost by dead workers are an error, not a quiet 'lost' cell
+    if lost:
+        print(lost, file=sys.stderr)
+    return 1 if lost else 0

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 import sys
 
 from ftstab_mj.cli.common import floats, workers
@@ -44,6 +43,7 @@ def handle(args) -> int:
 
     from ftstab_mj.scenario import find_scenario, load_scenario
     from ftstab_mj.studies import montecarlo as mc
+    from ftstab_mj.studies.compare import lost_line
     from ftstab_mj.studies.sweep.table import write_table
 
     path = find_scenario(args.scenario)
@@ -66,16 +66,22 @@ def handle(args) -> int:
     if tty:
         sys.stderr.write("\n")
     summary = mc.summarize(rows, applies)
+    applies = summary["bound_applies"]  # not where V1(z0) overflows
     out.mkdir(parents=True, exist_ok=True)
     write_table(rows, out / "montecarlo.parquet")
-    (out / "montecarlo.json").write_text(json.dumps(summary, indent=2) + "\n")
+    (out / "montecarlo.json").write_text(mc.json_text(summary) + "\n")
     mc.figure(rows, summary, f"{sc.name}: settle time / T(z0)", out / "montecarlo.png")
+    lost = lost_line(rows, "state")  # states lost by dead workers are an error
+    if lost:
+        print(lost, file=sys.stderr)
     if args.json:
-        print(json.dumps(summary, indent=2))
-        return 0
+        print(mc.json_text(summary))
+        return 1 if lost else 0
     q = summary["ratio"]
     print(f"  settled {summary['settled']}/{summary['states']}; with a time bound {summary['with_bound']}"
           f" (bound {'applies' if applies else 'does not apply'})")
+    if summary["bound_note"]:
+        print(f"  note: {summary['bound_note']}")
     if q["median"] is not None:
         print(f"  settle time / T(z0): min {q['min']:.3g}, median {q['median']:.3g}, p99 {q['p99']:.3g}, max {q['max']:.3g}")
     if summary["violations"] is not None:
@@ -85,4 +91,4 @@ def handle(args) -> int:
         print(f"  worst: state {w['row']}, z0 = [{', '.join(f'{x:.17g}' for x in w['z0'])}],"
               f" settle time {w['settle_time']:.6g} s, T(z0) {w['time_bound']:.6g} s")
     print(f"table: {out / 'montecarlo.parquet'}  summary: {out / 'montecarlo.json'}  figure: {out / 'montecarlo.png'}")
-    return 0
+    return 1 if lost else 0

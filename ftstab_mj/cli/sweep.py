@@ -85,7 +85,7 @@ def handle(args) -> int:
             else:
                 print(f"no log-log slope in {fit.plot}, {fit.series}: {fit.why_not}")
     if outcome.interrupted:
-        return 130
+        return outcome.interrupted_code
     if outcome.lost:
         print(f"error: {len(outcome.lost)} run(s) lost by dead workers (rows {', '.join(map(str, outcome.lost))});"
               f" --resume runs them", file=sys.stderr)

@@ -40,11 +40,12 @@ def parse_text(text: str, source: str, error: type[ScenarioError] = ScenarioErro
 
 def read_toml(path, kind: str, error: type[ScenarioError] = ScenarioError) -> dict:
     """The table of the TOML file ``path``; ``kind`` names it in errors (e.g. "scenario file (.toml)")."""
-    from ftstab_mj.config.validate import MAX_FILE_BYTES
+    from ftstab_mj.config.validate import MAX_FILE_BYTES, not_regular
 
     src, p = str(path), Path(path)
-    if not p.is_file():
-        raise error(src, "(file)", f"an existing {kind}", "a directory" if p.is_dir() else "no such file")
+    found = not_regular(p)  # a FIFO would block the read for ever, /dev/zero never end
+    if found:
+        raise error(src, "(file)", f"an existing {kind}", found)
     try:
         if p.stat().st_size > MAX_FILE_BYTES:
             raise error(src, "(file)", f"a {kind} of at most {MAX_FILE_BYTES} bytes", f"{p.stat().st_size} bytes")

@@ -27,14 +27,11 @@ from ftstab_mj.config.errors import ScenarioError, describe
 
 # -- limits, with the reason each one is stated for ---------------------------------------------------
 INT64 = (-(2 ** 63), 2 ** 63 - 1)
-MAX_FILE_BYTES = 1 << 20  # 1 MiB: a scenario is ~2 kB, a sweep with a 10,000-value list ~100 kB
+from ftstab_mj.config.limits import (MAX_FILE_BYTES, MAX_SAMPLES, MAX_STEPS,  # noqa: E402 - the one table
+                                     MAX_STEPS_PER_PERIOD, MAX_SWEEP_ROWS)  # noqa: F401 - re-exported
 MAX_DEPTH = 16  # arrays/tables nested deeper than any file of ours (the deepest, a sweep group, is 5)
 MAX_ITEMS = 100_000  # values in one file or --set
 MAX_NAME = 200  # characters of a name that becomes a file name: <name>.sweep.json must fit in 255 bytes
-MAX_SAMPLES = 10 ** 7  # control samples per run
-MAX_STEPS_PER_PERIOD = 10 ** 6  # physics steps per control period
-MAX_STEPS = 10 ** 9  # physics steps per run
-MAX_SWEEP_ROWS = 10 ** 5  # runs of one sweep
 LIMITS = {
     "samples": (MAX_SAMPLES, "a run logs up to ~350 B of each sample and loop (MCAP + Rerun) and its final-window "
                              "metrics need ~6 B of each at the end: 1e7 samples is ~3.5 GB of logs and ~60 MB of memory"),
@@ -365,3 +362,28 @@ def _hints_and_fields(cls) -> tuple[dict, tuple]:
     if hit is None:
         hit = _HINTS[cls] = (typing.get_type_hints(cls), fields(cls))
     return hit
+
+
+# -- input files: regular files only, bounded --------------------------------------------------------------
+def not_regular(path) -> str | None:
+    """None when ``path`` is a regular file (symlinks followed), else what it is, as an error's "found": "no such
+    file", "a directory", "a FIFO (named pipe)", "a character device", "a block device", "a socket", "a symlink
+    loop" or the OS's reason. Models, scenarios and includes are read from regular files only: opening a FIFO
+    waits for a writer for ever, and a device (/dev/zero) never ends."""
+    import errno
+    import os
+    import stat
+
+    try:
+        mode = os.stat(path).st_mode
+    except OSError as exc:
+        if exc.errno == errno.ELOOP:
+            return "a symlink loop"
+        if exc.errno in (errno.ENOENT, errno.ENOTDIR):
+            return "no such file"
+        return exc.strerror or str(exc)
+    if stat.S_ISREG(mode):
+        return None
+    return ("a directory" if stat.S_ISDIR(mode) else "a FIFO (named pipe)" if stat.S_ISFIFO(mode)
+            else "a character device" if stat.S_ISCHR(mode) else "a block device" if stat.S_ISBLK(mode)
+            else "a socket" if stat.S_ISSOCK(mode) else "not a regular file")

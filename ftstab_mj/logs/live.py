@@ -238,6 +238,50 @@ def _listening(port: int) -> bool:
         return s.connect_ex(("127.0.0.1", port)) == 0
 
 
+GRPC_PROBE_TIMEOUT = 2.0  # s for what listens on a --grpc-port (or a --live URL) to answer as a gRPC server
+HTTP2_PREFACE = b"PRI * HTTP/2.0\r\n\r\nSM\r\n\r\n" + b"\x00\x00\x00\x04\x00\x00\x00\x00\x00"  # + empty SETTINGS
+
+
+def speaks_grpc(host: str, port: int, timeout: float = GRPC_PROBE_TIMEOUT) -> bool:
+    """Whether ``host``:``port`` accepts a connection and answers an HTTP/2 client preface with a frame of its
+    own (a gRPC server, as Rerun's, sends its SETTINGS) within ``timeout`` s. A port where nothing listens, a
+    socket that never accepts or never answers, another protocol (an HTTP/1 server closes or answers text):
+    False. Rerun's own client would wait for ever on those (its flush has no bound)."""
+    import socket
+
+    try:
+        with socket.create_connection((host, port), timeout=timeout) as s:
+            s.settimeout(timeout)
+            s.sendall(HTTP2_PREFACE)
+            head = b""
+            while len(head) < 9:  # a frame header: length (3), type (1), flags (1), stream (4)
+                chunk = s.recv(9 - len(head))
+                if not chunk:
+                    return False
+                head += chunk
+            return head[3] == 0x04 and head[5:9] == b"\x00\x00\x00\x00"  # SETTINGS on stream 0
+    except OSError:  # refused, unreachable, timed out
+        return False
+
+
+def check_rerun_url(url: str, timeout: float = GRPC_PROBE_TIMEOUT) -> None:
+    """LogError (one line) unless the Rerun gRPC server at ``url`` (rerun+http://HOST:PORT/...) answers."""
+    from urllib.parse import urlsplit
+
+    from ftstab_mj.config.errors import LogError
+
+    try:
+        parts = urlsplit(url)
+        host, port = parts.hostname, parts.port
+    except ValueError:
+        host = port = None
+    if not host or not port:
+        raise LogError(f"--live {url}: expected a Rerun gRPC URL such as rerun+http://127.0.0.1:9876/proxy, found no host and port")
+    if not speaks_grpc(host, port, timeout):
+        raise LogError(f"--live {url}: expected a Rerun viewer or server answering on {host}:{port}, found none "
+                       f"(nothing listens, or no gRPC answer within {timeout:g} s)")
+
+
 def _rerun_binary() -> str | None:
     """The viewer binary rerun-sdk ships (the `rerun` command is a Python wrapper that runs it as a
     child: the process to stop is the binary), or None."""
@@ -264,6 +308,9 @@ def serve_rerun(grpc_port: int, web_port: int, timeout: float = 20.0) -> RerunSe
     url = f"rerun+http://127.0.0.1:{grpc_port}/proxy"  # the web viewer connects to it from the browser's side:
     web_url = f"http://127.0.0.1:{web_port}?url={quote(f'rerun+http://localhost:{grpc_port}/proxy', safe='')}"
     if _listening(grpc_port):
+        if not speaks_grpc("127.0.0.1", grpc_port):  # another program's port: Rerun would wait on it for ever
+            raise LogError(f"--grpc-port {grpc_port}: expected a free port or a running Rerun server, found the port "
+                           f"in use by another program (no gRPC answer within {GRPC_PROBE_TIMEOUT:g} s)")
         return RerunServer(url, web_url, None)
     exe = _rerun_binary() or shutil.which("rerun")
     if exe is None:
@@ -310,6 +357,7 @@ class LiveView:
         elif self.rerun == "spawn":
             say("rerun: streaming to a native Rerun viewer (started unless one is open)")
         elif self.rerun is not None:
+            check_rerun_url(self.rerun)  # nothing answering there: one line now, not a run that never ends
             say(f"rerun: streaming to {self.rerun}")
         if foxglove is not None:
             self.foxglove = FoxgloveServer(*foxglove, say=say)

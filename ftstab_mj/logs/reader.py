@@ -37,7 +37,7 @@ from ftstab_mj.config.errors import LogError
 from ftstab_mj.simulation.records import LOOP_FIELDS, RunInfo
 
 MCAP_MAGIC = b"\x89MCAP0\r\n"
-MAX_CHUNK_BYTES = 1 << 28  # 256 MiB uncompressed per chunk (the sink writes one chunk per batch, ~1 MB)
+from ftstab_mj.config.limits import MAX_CHUNK_BYTES, MAX_LOG_BYTES, MAX_STREAMED_LOG_BYTES  # noqa: E402
 MAX_EXPANSION = 64  # all chunks together decompress to at most this times the file size (+ 64 MiB)
 MAX_LOOPS = 64
 MAX_BODIES = 10_000
@@ -507,6 +507,24 @@ def _empty_loop(r: int) -> dict:
     return {f: np.empty((0, r)) if f == "z" else np.empty(0) for f in LOOP_FIELDS}
 
 
+def _read_bounded(f, path: str) -> bytes:
+    """What an unmappable log (a pipe, standard input, a device, an empty file) holds: its first bytes must be
+    MCAP's magic (``/dev/zero`` is refused at its 8th byte), and it is read to its end only up to
+    MAX_STREAMED_LOG_BYTES (held in memory), else refused. LogError (one line) names the file."""
+    head = f.read(len(MCAP_MAGIC))
+    if len(head) == len(MCAP_MAGIC) and head != MCAP_MAGIC:
+        raise LogError(f"{path}: expected an MCAP log (its first bytes {MCAP_MAGIC!r}), found {head[:8]!r}")
+    parts, size = [head], len(head)
+    while head:
+        head = f.read(min(1 << 24, MAX_STREAMED_LOG_BYTES + 1 - size))
+        parts.append(head)
+        size += len(head)
+        if size > MAX_STREAMED_LOG_BYTES:
+            raise LogError(f"{path}: expected a log read from a pipe or device to hold at most "
+                           f"{MAX_STREAMED_LOG_BYTES} bytes (a limit; give the file itself), found more")
+    return b"".join(parts)
+
+
 class _mapped:
     """``with _mapped(path) as (buf, release)``: the file's bytes as a memoryview of a read-only map
     (read into memory when it cannot be mapped, e.g. an empty file or a pipe); release(offset) gives the
@@ -519,19 +537,35 @@ class _mapped:
     def __enter__(self):
         import mmap
 
+        import os
+        import stat
+
         try:
             f = open(self.path, "rb")
+            st = os.fstat(f.fileno())
         except OSError as exc:
             raise LogError(f"{self.path}: cannot read the log ({exc.strerror})") from None
         self.file, self.map, self.released = f, None, 0
+        if stat.S_ISDIR(st.st_mode):
+            f.close()
+            raise LogError(f"{self.path}: expected an MCAP log file, found a directory")
+        if stat.S_ISREG(st.st_mode) and st.st_size > MAX_LOG_BYTES:
+            f.close()
+            raise LogError(f"{self.path}: expected a log of at most {MAX_LOG_BYTES} bytes (a limit), "
+                           f"found {st.st_size} bytes")
         try:
+            if not stat.S_ISREG(st.st_mode):  # a pipe, a device (/dev/zero): no map, read below
+                raise ValueError
             self.map = mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ)
         except (OSError, ValueError):
             try:
-                data = f.read()
+                data = _read_bounded(f, self.path)
             except OSError as exc:
                 f.close()
                 raise LogError(f"{self.path}: cannot read the log ({exc.strerror})") from None
+            except LogError:
+                f.close()
+                raise
             return memoryview(data), None
         self.view = memoryview(self.map)
         return self.view, self._release if hasattr(mmap, "MADV_DONTNEED") else None

@@ -27,6 +27,7 @@ references are still read from disk.
 from __future__ import annotations
 
 import contextlib
+import os
 from pathlib import Path
 
 import mujoco
@@ -82,15 +83,51 @@ def _flag(v, key):
     return v
 
 
+def check_model_files(path) -> None:
+    """ParameterError("model", ...) unless the MJCF file ``path`` and every file it <include>s (nested ones too,
+    relative to the model's folder as MuJoCo resolves them) are regular files within the limits
+    (config/limits.py: MAX_MJCF_BYTES, MAX_INCLUDE_BYTES, MAX_INCLUDES): MuJoCo would wait for ever on a FIFO,
+    never finish /dev/zero, and spend a minute and gigabytes on a huge file before a refusal could come."""
+    import os
+    import re
+
+    from ftstab_mj.config.limits import MAX_INCLUDE_BYTES, MAX_INCLUDES, MAX_MJCF_BYTES
+    from ftstab_mj.config.validate import not_regular
+
+    top = Path(path)
+    todo, seen = [(top, MAX_MJCF_BYTES, "model file")], set()
+    while todo:
+        p, limit, what = todo.pop()
+        found = not_regular(p)
+        if found:
+            raise ParameterError("model", f"an MJCF {what} that is a regular file", f"{p.name}: {found}")
+        size = os.stat(p).st_size
+        if size > limit:
+            raise ParameterError("model", f"an MJCF {what} of at most {limit} bytes (a limit)", f"{p.name}: {size} bytes")
+        key = os.path.realpath(p)
+        if key in seen:
+            continue
+        seen.add(key)
+        try:
+            text = p.read_bytes().decode("utf-8", "replace")
+        except OSError as exc:
+            raise ParameterError("model", f"a readable MJCF {what}", f"{p.name}: {exc.strerror}") from None
+        for name in re.findall(r"<include\b[^>]*?\bfile\s*=\s*[\"']([^\"']*)[\"']", text):
+            if len(seen) + len(todo) >= MAX_INCLUDES:
+                raise ParameterError("model", f"at most {MAX_INCLUDES} included files (a limit)", f"{top.name}: more")
+            todo.append((top.parent / name, MAX_INCLUDE_BYTES, "include"))
+
+
 def load_model_spec(path: str) -> mujoco.MjSpec:
     """The MjSpec of the MJCF file (or its recorded XML); ParameterError("model", ...) when unusable."""
     key = str(Path(path))
     try:
         if key in _RECORDED:
             spec = mujoco.MjSpec.from_string(_RECORDED[key])
-        elif not Path(path).is_file():
+        elif not os.path.lexists(path):
             raise ParameterError("model", "an MJCF file that exists", f"no file {Path(path).name} in {Path(path).parent}")
         else:
+            check_model_files(path)  # regular files of bounded size, the includes too, before MuJoCo reads any
             spec = mujoco.MjSpec.from_file(str(path))
         # One trip through MuJoCo's XML writer: its text is a fixed point of read + write (the first
         # trip rounds derived values such as inertias from geoms), so the run's model and the one a

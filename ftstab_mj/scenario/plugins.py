@@ -28,7 +28,7 @@ from ftstab_mj.config.errors import PluginError, ScenarioError, describe
 
 GROUPS = ("ftstab_mj.laws", "ftstab_mj.plants")
 HASH_TAG = "#sha256="
-MAX_PLUGIN_BYTES = 1 << 20  # a plugin file is source code: 1 MiB is far above any law or plant module
+from ftstab_mj.config.limits import MAX_PLUGIN_BYTES  # noqa: E402 - a plugin file is source code
 
 _loaded: dict[str, str] = {}  # imported module name -> where it came from (for origin())
 _by_file: dict[tuple[str, str], str] = {}  # (path, sha256) -> module name: each file imported once

@@ -110,7 +110,11 @@ class ControllerSpec:
 
 # -- the loop stages (ftstab_mj/loop_stages): sensor, observer, actuator ---------------------------
 def whole_periods(v):
-    return None if v >= 0 and float(v).is_integer() else "a whole number of control periods >= 0"
+    from ftstab_mj.config.limits import MAX_DELAY_SAMPLES
+
+    return (None if 0 <= v <= MAX_DELAY_SAMPLES and float(v).is_integer() else
+            f"a whole number of control periods in [0, {MAX_DELAY_SAMPLES:.0e}] (a limit: the delay line holds "
+            f"every delayed sample)".replace("e+0", "e"))
 
 
 def channel_values(v):

@@ -124,6 +124,10 @@ def load_comparison(path) -> Comparison:
             isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v > 0 for v in values)
         if not ok:
             raise _error(src, f'grid."{grid_path}"', "a non-empty array of numbers > 0", describe(values))
+        twice = sorted({float(v) for v in values if sum(float(w) == float(v) for w in values) > 1})
+        if twice:  # W1: the slope fit would count such a point twice (a weighted fit nobody asked for)
+            raise _error(src, f'grid."{grid_path}"', "distinct values (a value given twice counts twice in the "
+                         "log-log slope)", "repeated " + ", ".join(f"{v:g}" for v in twice))
     if spp is not None and grid_path != "sim.period":
         raise _error(src, "steps_per_period", 'a [grid] over "sim.period" (it sets physics_step = period / N)',
                      f"grid over {grid_path!r}")
@@ -254,6 +258,18 @@ def assemble(cmp: Comparison, task, items, results: dict) -> tuple[list[dict], d
     return rows, series, columns
 
 
+def lost_line(rows: list[dict], what: str = "run") -> str | None:
+    """None when no row was lost by the engine, else the one line an exit status 1 comes with, naming the rows
+    (a table with lost rows is not the comparison asked for: issue 44, W4). Rows are dicts with "row" and
+    "status" (compare's and montecarlo's tables)."""
+    lost = [row["row"] for row in rows if row.get("status") == "lost"]
+    if not lost:
+        return None
+    shown = ", ".join(map(str, lost[:20])) + (f" and {len(lost) - 20} more" if len(lost) > 20 else "")
+    return (f"error: {len(lost)} {what}(s) lost by dead worker processes (rows {shown}); the table marks them "
+            f"'lost', run the command again for them")
+
+
 def fit_slopes(rows: list[dict], grid_path: str) -> list[dict]:
     """Per law and per z_i: the least-squares slope of log10 max |z_i| against log10 of the grid value
     (completed rows with a positive accuracy only; None with fewer than 2 points)."""
@@ -265,6 +281,10 @@ def fit_slopes(rows: list[dict], grid_path: str) -> list[dict]:
         for i in range(1, r + 1):
             pts = [(row[grid_path], row.get(f"final_abs_z{i}")) for row in mine]
             pts = [(x, y) for x, y in pts if y is not None and y > 0]
+            by_x = {}
+            for x, y in pts:  # one point per grid value (the geometric mean of duplicates: the fit is in logs)
+                by_x.setdefault(x, []).append(y)
+            pts = [(x, float(np.exp(np.mean(np.log(ys))))) for x, ys in by_x.items()]
             fit[f"slope_z{i}"] = (float(np.polyfit(np.log10([p[0] for p in pts]), np.log10([p[1] for p in pts]), 1)[0])
                                   if len(pts) >= 2 else None)
         out.append(fit)

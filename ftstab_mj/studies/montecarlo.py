@@ -37,7 +37,7 @@ from ftstab_mj.metrics import run_metrics as mt
 from ftstab_mj.config.errors import ScenarioError, UsageError
 from ftstab_mj.simulation.records import LoopInfo
 
-MAX_STATES = 10**6  # a work limit: 10^6 trajectories of a 10 s run at 1 ms is ~1e10 chain steps (hours)
+from ftstab_mj.config.limits import MAX_STATES  # noqa: E402,F401 - 10^6 trajectories of a 10 s run at 1 ms: hours
 
 
 @dataclass(frozen=True)
@@ -210,13 +210,36 @@ def summarize(rows: list[dict], bound_applies: bool) -> dict:
     finite = ratio[np.isfinite(ratio)]
     q = (lambda p: float(np.quantile(finite, p))) if len(finite) else (lambda p: None)
     never = [r for r in rows if not math.isfinite(r["settle_time"])]
+    infinite = sum(1 for r in rows if not math.isfinite(r.get("V1_initial", 0.0)))
+    if infinite:  # V1(z0) beyond float range: T(z0) is no number, the bound cannot be said to apply (W3)
+        bound_applies = False
     worst = never[0] if never else (max((r for r in rows if math.isfinite(r["ratio"])), key=lambda r: r["ratio"])
                                     if len(finite) else None)
     return {"states": len(rows), "settled": int(settled.sum()), "never_settled": len(never),
             "bound_applies": bool(bound_applies), "with_bound": int(len(finite)),
             "ratio": {"min": q(0.0), "median": q(0.5), "p90": q(0.9), "p99": q(0.99), "max": q(1.0)},
             "violations": int(np.sum(finite > 1.0)) if bound_applies else None,
+            "bound_note": (f"V1(z0) is not a finite number for {infinite} state(s) (the box is beyond float range): "
+                           "no time bound is checked" if infinite else None),
             "worst": None if worst is None else {k: worst[k] for k in ("row", "z0", "settle_time", "time_bound", "ratio")}}
+
+
+def json_text(summary: dict) -> str:
+    """The summary as strict JSON: a non-finite number (a state that never settled, no time bound) is null,
+    never the bare NaN or Infinity that JSON does not have; what each null means is in the field's doc
+    (settle_time null: never settled; time_bound and ratio null: no certificate or V1 not finite)."""
+    import json
+
+    def strict(v):
+        if isinstance(v, float) and not math.isfinite(v):
+            return None
+        if isinstance(v, dict):
+            return {k: strict(x) for k, x in v.items()}
+        if isinstance(v, (list, tuple)):
+            return [strict(x) for x in v]
+        return v
+
+    return json.dumps(strict(summary), indent=2, allow_nan=False)
 
 
 def figure(rows: list[dict], summary: dict, title: str, path) -> None:

@@ -42,6 +42,14 @@ where the task has that method: what this process prepared for the chunk's rows 
 
 A result of ``None`` means the run was lost by the engine (its worker process died): it is not a
 result of the run and the caller must not record it as one.
+
+A process worker (:func:`worker_start`) does not keep the signal handlers it inherits from the command
+(which turn SIGTERM into an "interrupted" run): SIGTERM kills it as it would any process, so the pool sees
+the death at once (a SIGTERMed worker otherwise recorded its row "interrupted", and one blocked writing a
+large result could not be ended by the pool, which then waited for ever); SIGINT and SIGHUP, which a
+terminal sends to the whole process group, are left to the command, which kills its workers as it stops.
+A worker dies with the command (Linux: a parent-death signal; elsewhere a thread watching its parent),
+so killing the command (SIGKILL) leaves no worker behind.
 """
 
 from __future__ import annotations
@@ -184,6 +192,81 @@ def start_method() -> str:
     return "spawn"
 
 
+WORKER_SIGNALS = ("SIGINT", "SIGTERM", "SIGHUP")  # the signals the command handles (simulation/interrupts.py)
+PARENT_WATCH_INTERVAL = 1.0  # s between two looks at the parent where no parent-death signal exists (not Linux)
+
+
+def worker_start(parent: int) -> None:
+    """Initializer of every process-pool worker: SIGTERM at its default (death), SIGINT and SIGHUP ignored
+    (the command, which gets them too from the terminal, stops its workers itself), then unblocked (the pool
+    forks with them blocked: :func:`_signals_blocked`); and the worker dies with ``parent`` (the command's pid)."""
+    import os
+    import signal
+
+    for name, action in (("SIGTERM", signal.SIG_DFL), ("SIGINT", signal.SIG_IGN), ("SIGHUP", signal.SIG_IGN)):
+        if hasattr(signal, name):
+            signal.signal(getattr(signal, name), action)
+    die_with_parent(parent)
+    if hasattr(signal, "pthread_sigmask"):
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, _signal_numbers())
+    if os.getppid() != parent:  # the command died before we could watch it
+        os._exit(1)
+
+
+def die_with_parent(parent: int) -> None:
+    """Have this process killed (SIGKILL) when ``parent`` dies: prctl(PR_SET_PDEATHSIG) on Linux, else a daemon
+    thread that looks at the parent every PARENT_WATCH_INTERVAL s and ends the process once it changed."""
+    import os
+    import sys
+
+    if sys.platform.startswith("linux"):
+        import ctypes
+        import signal
+
+        try:
+            if ctypes.CDLL(None, use_errno=True).prctl(1, int(signal.SIGKILL), 0, 0, 0) == 0:  # PR_SET_PDEATHSIG
+                return
+        except (OSError, AttributeError):
+            pass
+    import threading
+
+    def watch():
+        while os.getppid() == parent:
+            time.sleep(PARENT_WATCH_INTERVAL)
+        os._exit(1)
+
+    threading.Thread(target=watch, name="ftstab-parent-watch", daemon=True).start()
+
+
+def _signal_numbers() -> set:
+    import signal
+
+    return {getattr(signal, name) for name in WORKER_SIGNALS if hasattr(signal, name)}
+
+
+@contextmanager
+def _signals_blocked():
+    """The command's signals blocked in this thread for the block (the pool's forks, whose children inherit the
+    mask: no signal reaches a worker before :func:`worker_start` reset its handlers); delivered after."""
+    import signal
+
+    if not hasattr(signal, "pthread_sigmask"):
+        yield
+        return
+    before = signal.pthread_sigmask(signal.SIG_BLOCK, _signal_numbers())
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, before)
+
+
+def _rows_text(indices) -> str:
+    """'rows 3, 4, 7' (the first 20, then 'and N more')."""
+    indices = sorted(indices)
+    shown = ", ".join(map(str, indices[:20]))
+    return f"row{'s' if len(indices) > 1 else ''} {shown}" + (f" and {len(indices) - 20} more" if len(indices) > 20 else "")
+
+
 def _stopped(pid: int) -> bool:
     """Whether process ``pid`` is stopped (SIGSTOP, SIGTSTP, a debugger: state T or t in /proc; Linux only)."""
     try:
@@ -204,6 +287,13 @@ class _StopWatch:
 
     def __init__(self, before: set, clock: Callable[[], float] = time.monotonic):
         self.before, self.since, self.killed, self.clock, self.last = before, {}, [], clock, None
+
+    def kill_all(self) -> None:
+        """SIGKILL every worker of the pool now (a stopped one too: it could not act on SIGTERM)."""
+        import multiprocessing
+
+        for proc in set(multiprocessing.active_children()) - self.before:
+            proc.kill()
 
     def check(self, timeout: float) -> None:
         """Kill every worker stopped for ``timeout`` s or more (0: every stopped worker, now)."""
@@ -237,9 +327,16 @@ def _processes(items, task, workers, meanwhile=None) -> Iterator[tuple[int, dict
     # a worker that dies (or is killed, stopped: _StopWatch) breaks its pool, which then drops the rows of
     # every chunk not finished, the other workers' too: those run once more on a fresh pool, and what a
     # second broken pool leaves unfinished is lost (a row that kills its worker each time it runs)
+    import sys
+
     unfinished = yield from _pool(items, task, workers, meanwhile)
     if unfinished:
+        print(f"warning: a worker process died; {_rows_text(i for i, _ in unfinished)} did not finish: "
+              f"they run again on a fresh pool (once)", file=sys.stderr, flush=True)
         unfinished = yield from _pool(unfinished, task, workers, last=True)
+        if unfinished:
+            print(f"warning: a worker process died again; {_rows_text(i for i, _ in unfinished)} are lost",
+                  file=sys.stderr, flush=True)
     yield from ((i, None) for i, _ in unfinished)
 
 
@@ -248,6 +345,7 @@ def _pool(items, task, workers, meanwhile=None, last=False):
     items (index, params) of the chunks it did not finish (its pool broke: a worker died or was killed).
     last: the caller runs nothing again (a stopped worker's warning then says its pool's rows are lost)."""
     import multiprocessing
+    import os
     import sys
     from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 
@@ -255,11 +353,13 @@ def _pool(items, task, workers, meanwhile=None, last=False):
     # With "fork", the pool forks all its workers at the first submit, before it starts its own thread
     method = start_method()
     watch = _StopWatch(set(multiprocessing.active_children()))
-    pool = ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context(method))
-    unfinished = []
+    pool = ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context(method),
+                               initializer=worker_start, initargs=(os.getpid(),))
+    unfinished, finished = [], False
     try:  # forked workers have this process's prepared rows in their memory; spawned ones get them sent
-        futures = {pool.submit(run_chunk, task if method == "fork" else carrying(task, chunk), chunk): chunk
-                   for chunk in chunks(items, workers)}
+        with _signals_blocked():  # the workers start (at the submits) with the command's signals blocked
+            futures = {pool.submit(run_chunk, task if method == "fork" else carrying(task, chunk), chunk): chunk
+                       for chunk in chunks(items, workers)}
         if meanwhile is not None:
             meanwhile()
         pending = set(futures)
@@ -271,8 +371,11 @@ def _pool(items, task, workers, meanwhile=None, last=False):
                     unfinished += futures[fut]
                 else:
                     yield from fut.result()
+        finished = True
     finally:
-        watch.check(0)  # leaving early (Ctrl-C, an error): a stopped worker would keep the shutdown waiting
+        if not finished:  # leaving early (Ctrl-C, SIGTERM, an error, the caller closed us): the shutdown would
+            watch.kill_all()  # wait for every running chunk to end (35 s seen); their rows are not results
+        watch.check(0)  # a stopped worker would keep the shutdown waiting
         pool.shutdown(wait=True, cancel_futures=True)
         for pid in watch.killed:
             print(f"warning: sweep worker process {pid} was stopped (SIGSTOP, Ctrl-Z or a debugger) for "

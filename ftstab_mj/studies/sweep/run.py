@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from ftstab_mj.config.errors import EngineError, SweepError
+from ftstab_mj.simulation.interrupts import interruption
 from ftstab_mj.simulation.records import COMPLETED
 from ftstab_mj.studies.sweep.engine import execute
 from ftstab_mj.studies.sweep.expand import Row
@@ -44,6 +45,12 @@ class SweepOutcome:
     interrupted: bool = False
     statuses: dict[str, int] = field(default_factory=dict)  # {status: rows of the table with it}
     rows_wall_s: float = 0.0
+    signal: int = 0  # the signal that interrupted the sweep (interrupted: SIGINT, SIGTERM or SIGHUP)
+
+    @property
+    def interrupted_code(self) -> int:
+        """The exit code of an interrupted sweep: 128 + its signal (130 Ctrl-C, 143 SIGTERM, 129 SIGHUP)."""
+        return 128 + (self.signal or 2)
 
 
 def fingerprint(rows: list[Row], identity: dict) -> str:
@@ -114,8 +121,8 @@ def run_sweep(name: str, rows: list[Row], task, out_dir, identity: dict, *, engi
             err = f": {row['error'].splitlines()[0]}" if row["error"] else ""
             _say(progress, f"[{len(done)}/{len(rows)}] row {i} {row['status']} in {row['elapsed_s']:.2f} s{err}"
                            + (f"; {left} to go, ~{eta:.0f} s left" if left else ""))
-    except KeyboardInterrupt:
-        outcome.interrupted = True
+    except KeyboardInterrupt as exc:
+        outcome.interrupted, outcome.signal = True, interruption(exc).signum
     except EngineError:
         if not done:  # nothing ran: leave no trace, so the same command works once the engine is there
             journal.close()
