@@ -173,8 +173,8 @@ def test_a_plugin_law_in_a_sweep_on_processes_and_in_a_comparison(user_folder):
         [grid]
         "loops.cart.controller.kp" = [16.0, 36.0]
         '''))
-    sweep = ftstab("sweep", "gains.toml", "--workers", "2", "--engine", "processes", "--format", "csv",
-                   "--out", "sw", cwd=user_folder)
+    sweep = ftstab("sweep", user_folder / "gains.toml", "--workers", "2", "--engine", "processes", "--format", "csv",
+                   "--out", user_folder / "sw", cwd=user_folder.parent)
     assert sweep.returncode == 0, sweep.stderr
     with open(user_folder / "sw" / "pd_gains.csv", newline="") as f:
         table = list(csv.DictReader(f))
@@ -192,7 +192,8 @@ def test_a_plugin_law_in_a_sweep_on_processes_and_in_a_comparison(user_folder):
         label = "nominal"
         controller = { law = "nominal", k = -0.2, gains = [1.0, 2.0] }
         '''))
-    cmp = ftstab("compare", "cmp.toml", "--out", "cmp", cwd=user_folder)
+    # from another folder: the plugins are relative to the base scenario, not to where the command runs
+    cmp = ftstab("compare", user_folder / "cmp.toml", "--out", user_folder / "cmp", cwd=user_folder.parent)
     assert cmp.returncode == 0, cmp.stderr
     with open(user_folder / "cmp" / "pd_vs_linear.csv", newline="") as f:
         rows = list(csv.DictReader(f))

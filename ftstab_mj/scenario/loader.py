@@ -16,7 +16,6 @@ the same checks as the file. The value is read as a TOML value (``2``, ``-0.1``,
 from __future__ import annotations
 
 import math
-import os
 import zlib
 from dataclasses import fields, is_dataclass, replace
 from pathlib import Path
@@ -32,7 +31,7 @@ from ftstab_mj.simulation.records import MetricSettings
 from ftstab_mj.scenario.schema import (
     EXTERNAL_CHECKS, SIGNAL_DERIVED, ControllerSpec, LoopSpec, PlantSpec, Scenario, SensorSpec,
 )
-from ftstab_mj.scenario.plugins import load_entry_points, load_plugins
+from ftstab_mj.scenario.plugins import is_plugin_file, load_entry_points, load_plugins
 from ftstab_mj.config.tomlfile import parse_text, read_toml
 from ftstab_mj.config.validate import LIMITS, Reader, limit_text, whole_steps
 
@@ -382,20 +381,22 @@ def load_scenario(path, overrides=()) -> Scenario:
     where = {}
     for text in overrides:
         where[apply_override(raw, text, src)] = f"--set {_short(text)}"
-    _resolve_model_path(raw, Path(src).parent)
+    resolve_relative_paths(raw, Path(src).parent)
     return scenario_from_dict(raw, src, where)
 
 
-def _resolve_model_path(raw: dict, base: Path) -> None:
-    """A user model's ``plant.model = "robot.xml"`` is relative to the scenario file: make it absolute
-    (the resolved scenario, and so the log's /scenario, then names the file wherever it is run)."""
+def resolve_relative_paths(raw: dict, base: Path) -> None:
+    """A user model's ``plant.model = "robot.xml"`` and the ``plugins`` files are relative to the
+    scenario file (folder ``base``): make them absolute, so the resolved scenario (a log's /scenario,
+    a sweep's or comparison's rows) names the same files wherever it is run from."""
     plant = raw.get("plant")
     model = plant.get("model") if isinstance(plant, dict) else None
     if isinstance(model, str) and model.endswith(".xml") and not Path(model).is_absolute():
-        try:
-            plant["model"] = str((base / model).resolve())
-        except (OSError, RuntimeError):  # a symlink loop: the model check names it (plants/user.py)
-            plant["model"] = os.path.abspath(base / model)
+        plant["model"] = str((base / model).resolve())
+    plugins = raw.get("plugins")
+    if isinstance(plugins, list):
+        raw["plugins"] = [str((base / p).resolve()) if isinstance(p, str) and is_plugin_file(p) and not Path(p).is_absolute()
+                          else p for p in plugins]
 
 
 def scenario_to_dict(sc: Scenario) -> dict:

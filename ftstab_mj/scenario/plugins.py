@@ -54,11 +54,17 @@ def load_plugins(entries, base: Path, error) -> list[str]:
     return [_load_one(entry, base, f"plugins[{i}]", error) for i, entry in enumerate(entries)]
 
 
+def is_plugin_file(entry: str) -> bool:
+    """Whether a ``plugins`` entry names a file (else an importable module)."""
+    target = entry.partition(HASH_TAG)[0]
+    return target.endswith(".py") or "/" in target or "\\" in target
+
+
 def _load_one(entry: str, base: Path, key: str, error) -> str:
     target, _, pinned = entry.partition(HASH_TAG)
     if not target:
         raise error(key, "a Python file or a module name", describe(entry))
-    if target.endswith(".py") or "/" in target or "\\" in target:
+    if is_plugin_file(target):
         return _load_file(Path(target) if Path(target).is_absolute() else base / target, pinned, key, error)
     return _load_module(target, pinned, key, error)
 

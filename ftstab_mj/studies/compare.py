@@ -49,7 +49,7 @@ import numpy as np
 from ftstab_mj.config import keypath
 from ftstab_mj.config.errors import ScenarioError, SweepError, UsageError, describe
 from ftstab_mj.simulation.records import COMPLETED
-from ftstab_mj.scenario.loader import apply_override, scenario_with
+from ftstab_mj.scenario.loader import apply_override, resolve_relative_paths, scenario_with
 from ftstab_mj.scenario.schema import identifier, one_line
 from ftstab_mj.config.tomlfile import read_toml
 
@@ -191,6 +191,7 @@ def prepare(cmp: Comparison, overrides=()) -> tuple[CompareTask, list]:
     scenario is validated here, before any run (a bad law table is a one-line error naming laws[i])."""
     src = str(cmp.scenario)
     raw = read_toml(cmp.scenario, "scenario file (.toml)")
+    resolve_relative_paths(raw, Path(src).parent)  # its model and plugins are relative to it
     for path, value in cmp.set:
         keypath.assign(raw, keypath.parse(path), value, f"{src} ({cmp.source} [set]: {path})")
     for text in overrides:

@@ -17,13 +17,14 @@ rows (:meth:`ScenarioTask.carrying`: ~1.4 KB a row, where validating again costs
 from __future__ import annotations
 
 import uuid
+from pathlib import Path
 import weakref
 from dataclasses import dataclass, field, replace
 
 from ftstab_mj.config import keypath
 from ftstab_mj.config.errors import ScenarioError, SweepError
 from ftstab_mj.simulation.records import COMPLETED, INTERRUPTED
-from ftstab_mj.scenario.loader import apply_override, scenario_from_dict, scenario_with
+from ftstab_mj.scenario.loader import apply_override, resolve_relative_paths, scenario_from_dict, scenario_with
 from ftstab_mj.studies.sweep.spec import Sweep
 from ftstab_mj.config.tomlfile import read_toml, value_text
 
@@ -109,6 +110,7 @@ def prepare(sweep: Sweep, rows, overrides=(), logs_dir=None) -> tuple[ScenarioTa
     """
     src = str(sweep.scenario)
     raw = read_toml(sweep.scenario, "scenario file (.toml)")
+    resolve_relative_paths(raw, Path(src).parent)  # its model and plugins are relative to it
     notes = {}
     for path, value in sweep.set:
         note = f"{sweep.source} [set]: {path} = {_short(value_text(value))}"
