@@ -77,6 +77,17 @@ kd = 10.0
 '''
 
 
+GAINS_SWEEP = textwrap.dedent('''
+    name = "pd_gains"
+    description = "the plugin's PD law over two gains"
+    scenario = "pd.toml"
+    [set]
+    "sim.duration" = 1.0
+    [grid]
+    "loops.cart.controller.kp" = [16.0, 36.0]
+    ''')
+
+
 def ftstab(*args, cwd, env=None, timeout=300):
     return subprocess.run([sys.executable, "-m", "ftstab_mj", *map(str, args)], cwd=cwd, capture_output=True,
                           text=True, timeout=timeout, env=env)
@@ -164,15 +175,7 @@ def test_an_unknown_law_is_named_as_such(user_folder):
 
 
 def test_a_plugin_law_in_a_sweep_on_processes_and_in_a_comparison(user_folder):
-    (user_folder / "gains.toml").write_text(textwrap.dedent('''
-        name = "pd_gains"
-        description = "the plugin's PD law over two gains"
-        scenario = "pd.toml"
-        [set]
-        "sim.duration" = 1.0
-        [grid]
-        "loops.cart.controller.kp" = [16.0, 36.0]
-        '''))
+    (user_folder / "gains.toml").write_text(GAINS_SWEEP)
     sweep = ftstab("sweep", user_folder / "gains.toml", "--workers", "2", "--engine", "processes", "--format", "csv",
                    "--out", user_folder / "sw", cwd=user_folder.parent)
     assert sweep.returncode == 0, sweep.stderr
@@ -205,15 +208,7 @@ def test_a_plugin_law_in_a_sweep_on_dask_workers(user_folder):
     plugins when a row's scenario reaches them."""
     from distributed import LocalCluster
 
-    (user_folder / "gains.toml").write_text(textwrap.dedent('''
-        name = "pd_gains"
-        description = "the plugin's PD law over two gains"
-        scenario = "pd.toml"
-        [set]
-        "sim.duration" = 1.0
-        [grid]
-        "loops.cart.controller.kp" = [16.0, 36.0]
-        '''))
+    (user_folder / "gains.toml").write_text(GAINS_SWEEP)
     with LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=None,
                       host="127.0.0.1") as cluster:
         sweep = ftstab("sweep", "gains.toml", "--scheduler", cluster.scheduler_address, "--format", "csv",
