@@ -19,7 +19,7 @@ from ftstab_mj.simulation.run_loop import simulate
 # its viewers clear while compiling a model, the package version. Above it, never: the run loop
 # (sim, native, plants), the scenario runner and loader, sweeps, the CLI.
 BELOW_LOGS = ("ftstab_mj.logs", "ftstab_mj.simulation.records", "ftstab_mj.metrics.run_metrics", "ftstab_mj.control", "ftstab_mj.config.errors",
-              "ftstab_mj.config.keypath",
+              "ftstab_mj.config.keypath", "ftstab_mj.config.limits",
               "ftstab_mj.plants.callback")
 
 
