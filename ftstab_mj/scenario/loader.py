@@ -265,8 +265,10 @@ def _check_plant(sc: Scenario, rd: _Reader):
     try:
         plant = make_plant(sc.plant.model, sc.plant.params)
     except ParameterError as exc:  # names "model" or "params.<key>"
+        from ftstab_mj.plants.chain import Finding  # a sentence of the plant's: shown whole, not cut to a value's length
+
         key = exc.name.removeprefix("params.")
-        raise rd.error(f"plant.{key}", exc.allowed, describe(exc.given)) from None
+        raise rd.error(f"plant.{key}", exc.allowed, exc.given if isinstance(exc.given, Finding) else describe(exc.given)) from None
     except ValueError as exc:  # MuJoCo's compiler refused the model these parameters make
         raise rd.error("plant", "parameters MuJoCo can compile a model from",
                        f"MuJoCo: {str(exc).removeprefix('Error: ').splitlines()[0]}") from None

@@ -123,6 +123,10 @@ class Simulation:
         self.stages = tuple(build_stages(L.sensor, L.observer, L.actuator, r, self.period, self.N, stream=i)
                             for i, L in enumerate(self.loops))
         self._staged = any(st is not None for st in self.stages)
+        # loops whose actuator MuJoCo clamps (a user model's ctrlrange/forcerange kept as its saturation):
+        # they record u_applied, the control the plant received, and the true phi is taken with it
+        clamps = getattr(plant, "clamps", None)
+        self._clamped = tuple(i for i in range(plant.n) if clamps is not None and clamps[i])
         # userdata: each law's state (loop i at state_slices[i]), then each loop's stage state
         # (stage_slices[i]), so that mjSTATE_INTEGRATION saves and restores both
         sizes = [law.state_size for law in self.laws] + [st.state_size if st else 0 for st in self.stages]
@@ -211,7 +215,8 @@ class Simulation:
                                   workspace=self.plant.loop_workspace(i, float(L.ref)),
                                   stages=None if self.stages[i] is None else describe_stages(
                                       self.stages[i], law, L.z0 if len(L.z0) else np.zeros(law.r)),
-                                  certificate_boxes=metric_settings.certificate_boxes))
+                                  certificate_boxes=metric_settings.certificate_boxes,
+                                  clamp=self.plant.clamp_texts[i] if i in self._clamped else None))
         return RunInfo(scenario=dict(scenario or {}), loops=tuple(infos), period=self.period,
                        physics_step=self.physics_step, metric_settings=metric_settings,
                        model_xml=self.model_xml, body_names=tuple(self.plant.body_names))
@@ -272,6 +277,7 @@ class Simulation:
         else:  # the same work, in C, inside one mj_step(nstep) call
             self._native.clear_rows()  # before the try: the finally below must never see the last batch's count
             self._native.stage_batch(k0, self._rec)
+            self._native.record_applied(self._rec)
             try:
                 self._native.run_batch(m, d, self._t, self._inj, self._gain, self._force, self._ctrl, self._rec_t,
                                        self._rec_z, [self._rec_scalars[f] for f in _SCALARS], self._pos, self._quat)
@@ -340,6 +346,8 @@ class Simulation:
             if st is not None:
                 rec.update(z_measured=np.empty((n_samples, st.channels)), z_hat=np.empty((n_samples, st.r)),
                            u_applied=np.empty(n_samples))
+        for i in self._clamped:  # ... and a loop whose actuator clamps, what the plant received
+            recs[i].setdefault("u_applied", np.empty(n_samples))
         self._rec = recs
 
     def take_batch(self) -> SampleBatch:
@@ -450,6 +458,10 @@ class Simulation:
         d.ctrl[self._act] = self._ctrl[s]
         if not self.plant.integrating:
             d.qfrc_applied[self._dof] = self._force[s]
+        if self._clamped:  # what MuJoCo's actuator applies (its ctrlrange, forcerange): the phi of the chain
+            u = self.plant.applied(u, self._gain[s])  # is the rest of q^(r) (h (phi + gamma u_applied) per period)
+            for i in self._clamped:
+                self._rec[i]["u_applied"][row] = u[i]
         phi, gamma = self.plant.true_chain(m, d, u, self._gain[s], self._inj[s])
         for i, rec in enumerate(self._rec):
             rec["phi"][row] = phi[i]
