@@ -594,6 +594,7 @@ typedef struct {
     double *u_steps;             /* (N,) scratch: the actuator's output at each step of the period */
     double *rec_zm[FT_MAXLOOPS], *rec_zh[FT_MAXLOOPS], *rec_ua[FT_MAXLOOPS]; /* (samples, m), (samples, r), (samples,) */
     const ft_chain *chain;       /* a chain plant's readout and truth (NULL: z from sensor_adr, phi from inj) */
+    const double *ref_table;     /* (samples, n, r + 1) ref^(j)(t_k) of tracked references; NULL: set points refs */
 } ft_run;
 
 /* The ctrl and qfrc_applied index of loop i. */
@@ -619,7 +620,8 @@ static void run_sample(ft_run *R, const void *m, void *d, int64_t s) {
         const int r = R->laws[i].r;
         for (int j = 0; j < r; j++) {
             double v = R->chain ? chain_read(R->chain, R->sensordata, i, j, r) : R->sensordata[R->sensor_adr[i * r + j]];
-            if (j == 0) v -= R->refs[i];
+            if (R->ref_table) v -= R->ref_table[(row * n + i) * (r + 1) + j];
+            else if (j == 0) v -= R->refs[i];
             z[i * FT_RMAX + j] = v;
             if (!(fabs(v) <= zmax)) { if (v != v) nan = 1; else zmax = fabs(v); }
         }
@@ -706,6 +708,11 @@ static void run_sample(ft_run *R, const void *m, void *d, int64_t s) {
             R->rec[7][i * S + row] = gamma[i];
         }
     }
+    if (R->ref_table) /* the error chain's phi: z_r' = q^(r) - ref^(r) */
+        for (int i = 0; i < n; i++) {
+            const int r = R->laws[i].r;
+            R->rec[6][i * S + row] = R->rec[6][i * S + row] - R->ref_table[(row * n + i) * (r + 1) + r];
+        }
     for (int b = 0; b < R->nbody; b++) {
         for (int c = 0; c < 3; c++) R->body_pos[(row * R->nbody + b) * 3 + c] = R->xpos[R->body_ids[b] * 3 + c];
         for (int c = 0; c < 4; c++) R->body_quat[(row * R->nbody + b) * 4 + c] = R->xquat[R->body_ids[b] * 4 + c];

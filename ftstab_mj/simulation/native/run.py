@@ -51,7 +51,7 @@ class FtRun(ctypes.Structure):
         ("bad_value", _d), ("bad_time", _d), ("busy", _i32),
         ("stages", _p), ("stage_on", _p), ("stage_adr", _p), ("k0", _i64), ("u_steps", _p),
         ("rec_zm", _p * MAXLOOPS), ("rec_zh", _p * MAXLOOPS), ("rec_ua", _p * MAXLOOPS),
-        ("chain", _p),
+        ("chain", _p), ("ref_table", _p),
     ]
 
 
@@ -296,6 +296,15 @@ class NativeRun:
             tables.append(table)
             self._keep["stages"][i].noise = table.ctypes.data
         self._keep["noise_tables"] = tables
+
+    def reference_batch(self, table) -> None:
+        """Before a batch: ref^(j)(t_k) (samples, n, r + 1) of tracked references (None: set points, refs)."""
+        if table is None:
+            self.run.ref_table = None
+            return
+        require_buffer("ref_table", table, table.shape)
+        self._ref_table = table  # kept alive for the batch
+        self.run.ref_table = table.ctypes.data
 
     def record_applied(self, recs) -> None:
         """Before a batch: where each loop that records u_applied (stages, or an actuator that clamps)
