@@ -443,5 +443,5 @@ def scenario_to_dict(sc: Scenario) -> dict:
 
     d = plain(sc, skip=("plant", "loops") + (() if sc.plugins else ("plugins",)))  # logs without plugins unchanged
     d["plant"] = {"model": sc.plant.model, **sc.plant.params}
-    d["loops"] = {lp.name: plain(lp, skip=("name",)) for lp in sc.loops}
+    d["loops"] = {lp.name: plain(lp, skip=("name",) + (("ref",) if lp.reference is not None else ())) for lp in sc.loops}
     return d
