@@ -238,3 +238,17 @@ def test_a_computed_phibar_covers_the_references_second_derivative():
     raw["loops"]["cart"]["controller"]["phibar"] = "computed"
     sc = scenario_from_dict(raw)
     assert sc.loops[0].controller.phibar == pytest.approx(0.5 + 0.3 * math.pi ** 2)
+
+
+def test_hopper_log_replays_with_verify_and_reports_in_rad_under_a_short_title(tmp_path):
+    """Its builtin textures read no file: --verify re-runs it from the logged XML, bit for bit; the
+    report names the model's file (not its path) and draws the joints in rad."""
+    res = ftstab_mj.run(_hopper(tmp_path, duration=0.2), out=tmp_path / "runs")
+    proc = run_cli("replay", "--verify", res.logs["mcap"])
+    assert proc.returncode == 0 and "bit-identical" in proc.stdout, proc.stdout + proc.stderr
+    from ftstab_mj.figures.run_report import report_data
+    from ftstab_mj.logs.reader import read_log
+
+    rep = report_data(read_log(res.logs["mcap"]))
+    assert "plant hopper.xml," in rep.title and str(ASSETS) not in rep.title
+    assert rep.loops["thigh"][0].ylabel == "z1 (rad)"
