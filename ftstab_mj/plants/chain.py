@@ -274,9 +274,14 @@ class ChainPlant(Plant):
                 raise ParameterError(f"{key}.{loops[0].name}.integrating", "false for a model with " + ", ".join(
                     self.beyond) + " (r = 3 needs the derivative of q'', which a contact or limit force does not have)",
                     Finding("true"))
-            self.notes.append(f"model {Path(model_name).name!r} has " + "; ".join(self.beyond) + ": simulated by MuJoCo "
-                              "and part of the recorded phi and gamma (its full dynamics), but not covered by any "
-                              "bound: give phibar and gamma_m by hand, or use a law that needs none (adaptive)")
+            if self.bounds_refusals:
+                self.notes.append(f"model {Path(model_name).name!r} has " + "; ".join(self.beyond) + ": simulated by "
+                                  "MuJoCo and part of the recorded phi and gamma (its full dynamics), but not covered "
+                                  "by any bound: give phibar and gamma_m by hand, or use a law that needs none (adaptive)")
+            else:  # joint limits only, the workspace inside every one
+                self.notes.append(f"model {Path(model_name).name!r} has " + "; ".join(self.beyond) + ": simulated by "
+                                  "MuJoCo; the workspace of the bounds lies inside every limit, so the computed bounds "
+                                  "hold while the run stays in it (metrics: workspace_left)")
         self.chain_loops = loops
         self.loop_names = tuple(L.name for L in loops)
         self.joint_ids = np.array([mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, L.joint) for L in loops])
