@@ -252,3 +252,19 @@ def test_hopper_log_replays_with_verify_and_reports_in_rad_under_a_short_title(t
     rep = report_data(read_log(res.logs["mcap"]))
     assert "plant hopper.xml," in rep.title and str(ASSETS) not in rep.title
     assert rep.loops["thigh"][0].ylabel == "z1 (rad)"
+
+
+def test_api_overrides_take_a_dict_as_a_table_and_scenarios_come_from_dicts(tmp_path):
+    table = {"law": "nominal", "k": -0.2, "gains": [1.0, 2.0]}
+    sc = ftstab_mj.load_scenario("cart_r2_robust", overrides={"loops.cart.controller": table, "sim.duration": 0.5})
+    assert sc.loops[0].controller.law == "nominal" and sc.sim.duration == 0.5
+    data = scenario_to_dict(sc)
+    back = ftstab_mj.scenario_from_dict(data, overrides={"sim.duration": 0.25})
+    assert back.sim.duration == 0.25 and back.loops == sc.loops
+    (tmp_path / "robot.xml").write_text((ASSETS / "inverted_pendulum.xml").read_text())
+    user = ftstab_mj.scenario_from_dict({"name": "p", "description": "d", "plant": {
+        "model": "robot.xml", "loops": {"cart": {"joint": "slider", "saturation": True}}}, "sim": {"duration": 0.1},
+        "loops": {"cart": {"z0": [0.0, 0.0], "controller": table}}}, base_dir=tmp_path)
+    assert user.plant.model == str(tmp_path / "robot.xml")
+    with pytest.raises(ScenarioError, match=r"loops.cart.controller.gains"):
+        ftstab_mj.load_scenario("cart_r2_robust", overrides={"loops.cart.controller": {**table, "gains": [1.0]}})

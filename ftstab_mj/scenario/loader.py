@@ -410,11 +410,11 @@ def load_scenario(path, overrides=()) -> Scenario:
     where = {}
     for text in overrides:
         where[apply_override(raw, text, src)] = f"--set {_short(text)}"
-    _resolve_model_path(raw, Path(src).parent)
+    resolve_model_path(raw, Path(src).parent)
     return scenario_from_dict(raw, src, where)
 
 
-def _resolve_model_path(raw: dict, base: Path) -> None:
+def resolve_model_path(raw: dict, base: Path) -> None:
     """A user model's ``plant.model = "robot.xml"`` is relative to the scenario file: make it absolute
     (the resolved scenario, and so the log's /scenario, then names the file wherever it is run)."""
     plant = raw.get("plant")
