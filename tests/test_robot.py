@@ -134,6 +134,11 @@ L = 20.0
     assert m["u_max_abs"] > 5.0 and m["u_applied_max_abs"] == 3.0, m
     assert m["clamp"] == "ctrlrange [-3, 3]" and 0 < m["saturated_fraction"] < 1
     assert m["bound_applies"] is False and "clamped the law's u" in m["bound_applies_reason"]
+    from ftstab_mj.studies.compare import table_row  # the comparison table's row: both controls
+
+    row = table_row(("st", {"law": "super_twisting"}, None, True), {"status": "completed", "metrics": res.metrics},
+                    "cart", None)
+    assert row["u_max_abs"] == m["u_max_abs"] and row["u_applied_max_abs"] == 3.0
     log = ftstab_mj.replay(res.logs["mcap"])
     a = log.samples["cart"]
     assert np.array_equal(a["u_applied"], res.samples["cart"]["u_applied"])
