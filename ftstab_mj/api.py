@@ -40,16 +40,60 @@ class Result:
     warning: str | None = None
 
 
+def _toml(value) -> str:
+    """A Python value as a TOML literal: numbers, booleans, strings, lists and dicts (inline tables)."""
+    import json
+    import math
+    import re
+
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, int):
+        return str(value)
+    if isinstance(value, float):
+        return repr(value) if math.isfinite(value) else ("nan" if value != value else "inf" if value > 0 else "-inf")
+    if isinstance(value, str):
+        return json.dumps(value)  # a TOML basic string (JSON's escapes are TOML's)
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(_toml(v) for v in value) + "]"
+    if isinstance(value, dict):
+        return "{" + ", ".join(f"{k if re.fullmatch(r'[A-Za-z0-9_-]+', str(k)) else json.dumps(str(k))} = {_toml(v)}"
+                               for k, v in value.items()) + "}"
+    raise TypeError(f"override value {value!r}: expected a number, boolean, string, list or dict")
+
+
 def _overrides(overrides) -> list[str]:
     """{"sim.duration": 2} or ["sim.duration=2"] -> the --set texts (dict values as TOML literals:
-    numbers, booleans, lists; a str is a TOML string)."""
+    numbers, booleans, strings, lists, and dicts as tables: {"loops.cart.controller": {"law": ...}}
+    replaces that table, as ``--set 'loops.cart.controller={law = ...}'`` does)."""
     if overrides is None:
         return []
     if isinstance(overrides, dict):
-        import json
-
-        return [f"{key}={json.dumps(value)}" for key, value in overrides.items()]
+        return [f"{key}={_toml(value)}" for key, value in overrides.items()]
     return [str(o) for o in overrides]
+
+
+def scenario_from_dict(data: dict, overrides=None, base_dir=None):
+    """A validated scenario (ftstab_mj.scenario.Scenario) from plain data shaped as a scenario file
+    ({"name": ..., "plant": {"model": ...}, "sim": {...}, "loops": {...}}), checked as a file is.
+
+    overrides: as for :func:`load_scenario`; base_dir: the folder a user model's relative
+    ``plant.model`` path is read from (default: the current directory). ``data`` is not modified.
+    Raises ScenarioError (one line: key path, expected, found) on bad input."""
+    import copy
+    from pathlib import Path
+
+    from ftstab_mj.config.errors import ScenarioError
+    from ftstab_mj.scenario.loader import apply_override, resolve_relative_paths
+    from ftstab_mj.scenario.loader import scenario_from_dict as check
+
+    if not isinstance(data, dict):
+        raise ScenarioError("<scenario dict>", "", "a dict shaped as a scenario file", type(data).__name__)
+    raw, where = copy.deepcopy(data), {}
+    for text in _overrides(overrides):
+        where[apply_override(raw, text, "<scenario dict>")] = f"override {text}"
+    resolve_relative_paths(raw, Path(base_dir) if base_dir is not None else Path.cwd())
+    return check(raw, "<scenario dict>", where)
 
 
 def load_scenario(name_or_path, overrides=None):

@@ -37,6 +37,8 @@ import os
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
 
+from pathlib import Path
+
 import numpy as np
 
 from ftstab_mj.config.errors import FtstabError, LogWriteError
@@ -92,11 +94,13 @@ def _joint_type(model_xml: str | None, joint: str) -> str | None:
         root = ET.fromstring(model_xml)
     except ET.ParseError:
         return None
-    if any(d.get("type") for d in root.iter("default") for d in d.iter("joint")):
-        return None  # a class default may set the type: not worth resolving MJCF's class inheritance
+    defaults_type = any(d.get("type") for d in root.iter("default") for d in d.iter("joint"))
     for j in root.iter("joint"):
         if j.get("name") == joint:
-            return j.get("type", "hinge")  # MJCF's default joint type
+            if j.get("type"):
+                return j.get("type")
+            # a class default may set the type: not worth resolving MJCF's class inheritance
+            return None if defaults_type else "hinge"  # MJCF's default joint type
     return None
 
 
@@ -166,6 +170,14 @@ def _loop_panels(data: LogData, lp) -> tuple[Panel, ...]:
     pos, u_unit = loop_units(data, lp.name, lp.r)
     panels = []
     z, z_hat = a["z"], a.get("z_hat")
+    ref_info = getattr(lp, "reference", None)
+    if ref_info:  # a tracked reference: q with ref(t) (z_1 = q - ref)
+        from ftstab_mj.plants.reference import Reference
+
+        ref = Reference(**{k: tuple(v) if isinstance(v, list) else v for k, v in ref_info.items() if k != "max_abs"})
+        r_t = ref.derivatives(t, 0)[:, 0]
+        panels.append(Panel("q", f"q and its reference{_unit(pos)}", (
+            Curve("q", t, z[:, 0] + r_t, color="C0"), Curve(f"ref ({ref.kind})", t, r_t, style="--", color="k"))))
     for i in range(z.shape[1]):
         unit = _per_s(pos, i) if pos else None
         curves = [Curve(f"z{i + 1}", t, z[:, i], color="C0")]
@@ -206,6 +218,8 @@ def report_data(data: LogData) -> ReportData:
         else f"{data.info.loops[0].law} law"
     plant = sc.get("plant", {}).get("model") if isinstance(sc.get("plant"), dict) else None
     status = data.recorded["status"] if data.recorded else "truncated log"
+    if isinstance(plant, str) and plant.endswith(".xml"):  # a user model: its file name, not its path
+        plant = Path(plant).name
     title = (f"{sc.get('name', '?')}: {laws}\n" + (f"plant {plant}, " if plant else "")
              + f"control period {data.info.period * 1e3:g} ms, {status}")
     loops = {lp.name: _loop_panels(data, lp) for lp in data.info.loops}

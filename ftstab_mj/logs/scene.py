@@ -15,11 +15,14 @@ import numpy as np
 # A model read from a log is untrusted: compiling it must neither read local files nor allocate
 # what its numbers declare. These elements name files or generate/allocate in bulk; a log's model
 # holding one is not compiled (its 3D is left out); so is one with an attribute naming a file or folder.
-UNTRUSTED_ELEMENTS = frozenset({"include", "mesh", "hfield", "texture", "skin", "flex", "flexcomp", "composite",
+UNTRUSTED_ELEMENTS = frozenset({"include", "mesh", "hfield", "skin", "flex", "flexcomp", "composite",
                                 "replicate", "plugin", "extension", "model", "attach", "instance", "frame"})
 FILE_ATTRIBUTES = ("meshdir", "texturedir", "assetdir")  # and every attribute starting with "file"
 MAX_ELEMENTS = 10_000  # elements in a log's model (ours have tens)
 MAX_MODEL_CHARS = 1 << 20
+# A <texture> is accepted when it reads no file (a builtin one: gradient, checker, flat) and MuJoCo
+# allocates at most this many pixels for it (width x height, x 6 for a cube or skybox)
+MAX_TEXTURE_PIXELS = 1 << 22
 
 # MuJoCo geom types drawn (others, e.g. meshes and height fields, are left out of the viewers).
 DRAWN = ("plane", "sphere", "capsule", "ellipsoid", "cylinder", "box")
@@ -66,6 +69,8 @@ def check_untrusted_model(model_xml: str, what: str) -> None:
         if n >= MAX_ELEMENTS:
             raise LogError(f"{what}: expected at most {MAX_ELEMENTS} elements in the model, found more")
         tag = el.tag.lower() if isinstance(el.tag, str) else ""
+        if tag == "texture":
+            _check_texture(el, what)
         if tag in UNTRUSTED_ELEMENTS:
             raise LogError(f"{what}: the model holds a <{tag}> element; a model from a log is not compiled when it "
                            "could read local files or allocate in bulk")
@@ -73,6 +78,23 @@ def check_untrusted_model(model_xml: str, what: str) -> None:
             if attr.lower().startswith("file") or attr.lower() in FILE_ATTRIBUTES:
                 raise LogError(f"{what}: the model names a file or folder (<{tag} {attr}={value[:60]!r}>); "
                                "a model from a log never makes replay read local files")
+
+
+def _check_texture(el, what: str) -> None:
+    """A builtin texture reads nothing; its size is bounded (a file texture is refused with the other files)."""
+    from ftstab_mj.config.errors import LogError
+
+    if el.get("builtin", "none") == "none":
+        raise LogError(f"{what}: the model holds a <texture> that is not builtin; a model from a log never makes "
+                       "replay read local files")
+    try:
+        w, h = int(float(el.get("width", "0"))), int(float(el.get("height", "0")))
+    except ValueError:
+        raise LogError(f"{what}: expected a <texture> width and height that are integers") from None
+    pixels = max(w, 1) * max(h, 1) * (6 if el.get("type", "cube") in ("cube", "skybox") else 1)
+    if pixels > MAX_TEXTURE_PIXELS:
+        raise LogError(f"{what}: expected builtin <texture> elements of at most {MAX_TEXTURE_PIXELS} pixels, found {w} x {h}"
+                       f" ({el.get('type', 'cube')})")
 
 
 def model_shapes(model_xml: str, body_names) -> tuple[Shape, ...]:

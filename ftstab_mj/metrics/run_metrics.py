@@ -618,13 +618,14 @@ class _FinalWindow:
     (their FFT and np.sum's pairwise bits need the whole array): 8 bytes per window sample (16 with
     stages)."""
 
-    def __init__(self, r: int, staged: bool, capacity: int):
+    def __init__(self, r: int, staged: bool, capacity: int, applied: bool = False):
         self.r, self.staged, self.m = r, staged, 0
+        self.applied = staged or applied  # the rows end with u_applied
         self.start = None
         self.z_max = self.v_max = self.v_min = self.ph_max = self.e_max = None
         self.e_sq = _AxisSum(r)
         self.u = np.empty(capacity)  # filled up to m
-        self.u_applied = np.empty(capacity if staged else 0)
+        self.u_applied = np.empty(capacity if self.applied else 0)
 
     def update(self, rows) -> None:
         r, m, k = self.r, self.m, len(rows)
@@ -642,7 +643,8 @@ class _FinalWindow:
             e = np.abs(rows[:, 4 + r:4 + 2 * r] - z)
             self.e_max = _nan_max(self.e_max, np.max(e, axis=0))
             self.e_sq.update(e * e)
-            self.u_applied[m:m + k] = rows[:, 4 + 2 * r]
+        if self.applied:
+            self.u_applied[m:m + k] = rows[:, -1]
         self.m = m + k
 
 
@@ -666,7 +668,9 @@ class _LoopStream:
         self.settle_z1 = _SettleTracker(ms.settle_z1)
         self.n = 0
         self.stages = getattr(loop, "stages", None)
-        self.ring = _Ring(4 + loop.r + (loop.r + 1 if self.stages is not None else 0), self._window(n_total or 0))
+        self.clamp = getattr(loop, "clamp", None) if self.stages is None else None  # u_applied without stages
+        self.ring = _Ring(4 + loop.r + (loop.r + 1 if self.stages is not None else 1 if self.clamp else 0),
+                          self._window(n_total or 0))
         self.first = self.last = None
         self.abs_sum, self.sq_sum = _BlockSum(), _BlockSum()
         self.u_max = self.phi_hat_max = self.u_applied_max = None
@@ -704,6 +708,10 @@ class _LoopStream:
             self.n_saturated += saturated_time(u, self.stages, 1.0)  # a count: exact
             self.u_applied_max = _nan_max(self.u_applied_max, np.max(np.abs(a["u_applied"])))
             cols += [a["z_hat"], a["u_applied"][:, None]]
+        elif self.clamp:
+            self.n_saturated += float(np.count_nonzero(a["u_applied"] != u))
+            self.u_applied_max = _nan_max(self.u_applied_max, np.max(np.abs(a["u_applied"])))
+            cols += [a["u_applied"][:, None]]
         self.n += m
         self.ring.grow(self._window(self.n))
         self.ring.append(np.hstack(cols))
@@ -722,7 +730,7 @@ class _LoopStream:
         last sample when there is none."""
         ms, h, n, ring = self.info.metric_settings, self.info.period, self.n, self.ring
         start = final_window_start(self.first["t"], n, h, ms)
-        fw = _FinalWindow(self.loop.r, self.stages is not None, ring.held)
+        fw = _FinalWindow(self.loop.r, self.stages is not None, ring.held, applied=bool(self.clamp))
         last = None
         for k, rows in enumerate(ring.chunks()):
             win = rows[:, 0] >= start
@@ -749,6 +757,8 @@ class _LoopStream:
         stages = self.stages
         reasons = stage_reasons(stages)
         # the true bounds only hold inside the workspace; the stages may break the theorems' assumptions
+        if self.clamp and self.n_saturated:  # the plant's actuator clamped the law: its guarantee does not hold
+            reasons = reasons + [f"the actuator's {self.clamp} clamped the law's u"]
         applies = bound_applies(loop) and not left and not reasons
         u_win = fw.u[:fw.m]
         out.update({
@@ -790,6 +800,16 @@ class _LoopStream:
                 # estimation_error(z_hat, z) of the window, reduced as it is read
                 "estimation_error_max": [_num(x) for x in fw.e_max],
                 "estimation_error_rms": [_num(x) for x in np.sqrt(fw.e_sq.result() / fw.m)],
+                "time_saturated": _num(t_sat),
+                "saturated_fraction": _num(t_sat / (n * h)),
+                "chattering_applied": chattering(fw.u_applied[:fw.m], h),
+                "u_applied_max_abs": _num(self.u_applied_max),
+            })
+        elif self.clamp:  # the plant's actuator clamps: u_max_abs, chattering are the law's u; these what it applied
+            t_sat = self.n_saturated * h
+            out.update({
+                "clamp": self.clamp,
+                "bound_applies_reason": "; ".join(reasons) if reasons else None,
                 "time_saturated": _num(t_sat),
                 "saturated_fraction": _num(t_sat / (n * h)),
                 "chattering_applied": chattering(fw.u_applied[:fw.m], h),

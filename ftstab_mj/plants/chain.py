@@ -30,6 +30,7 @@ What cannot be a chain is refused with a ParameterError naming the key (see :fun
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 
 import mujoco
 import numpy as np
@@ -37,6 +38,7 @@ import numpy as np
 from ftstab_mj.config.errors import ParameterError
 from ftstab_mj.plants.base import Plant
 
+TAU_STEP = 1e-3  # N m or N: half-width of the central difference of q'' in the loop's force (contacts)
 EPS = 1e-6  # s: half-width of the central difference of q'' along the trajectory (r = 3)
 SENSOR_PREFIX = "ftstab_"  # the sensors the plant adds to a model start with it
 _HINGE, _SLIDE = int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE)
@@ -63,39 +65,41 @@ def _name(m, objtype, i) -> str:
 
 def check_model(m: mujoco.MjModel, loops, key: str = "params.loops", constraints_key: str = "params",
                 joint_ranges: dict | None = None) -> list[str]:
-    """Refuse what cannot be a chain (ParameterError naming ``key``.<loop>.<field>); return the notes
+    """Refuse what cannot be a loop (ParameterError naming ``key``.<loop>.<field>); return the notes
     to show the user (saturations honoured). Checks, in order: each loop's joint exists and is hinge
     or slide, its actuator exists, drives that joint through a joint transmission with a fixed gain
     > 0, has the dynamics the loop says (none, or integrator), has no range that would clamp the
-    control silently; every joint hinge or slide (nq = nv); no joint limit that the workspace
-    (``joint_ranges``: joint name -> (q_min, q_max)) reaches, no tendon limits, no equality
-    constraints, no contact that can happen. Returns (notes, the loops' actuator ids)."""
+    control silently. What the rest of the model adds (contacts, limits, a floating base) is not
+    refused: :func:`beyond_chain` says what it is. Returns (notes, the loops' actuator ids)."""
     notes, actuator_ids = [], []
     seen = {}
     for L in loops:
         p = f"{key}.{L.name}"
         j = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, L.joint)
         if j < 0:
-            raise ParameterError(f"{p}.joint", "a joint of the model", L.joint)
+            raise ParameterError(f"{p}.joint", "a joint of the model with an actuator (" + (_names(
+                {_name(m, mujoco.mjtObj.mjOBJ_JOINT, int(m.actuator_trnid[a, 0])) for a in range(m.nu)
+                 if m.actuator_trntype[a] == mujoco.mjtTrn.mjTRN_JOINT}, 12) or "the model has none") + ")", L.joint)
         if m.jnt_type[j] not in (_HINGE, _SLIDE):
-            raise ParameterError(f"{p}.joint", "a hinge or slide joint (one dof, a chain of integrators)",
+            raise _refusal(f"{p}.joint", "a hinge or slide joint (one dof, a chain of integrators)",
                                  f"{L.joint!r}, a {_JOINT_TYPES[int(m.jnt_type[j])]} joint")
         if L.joint in seen:
-            raise ParameterError(f"{p}.joint", "a joint no other loop drives", f"{L.joint!r}, also loop {seen[L.joint]!r}")
+            raise _refusal(f"{p}.joint", "a joint no other loop drives", f"{L.joint!r}, also loop {seen[L.joint]!r}")
         seen[L.joint] = L.name
         driver_ids = [a for a in range(m.nu)
                       if m.actuator_trntype[a] == mujoco.mjtTrn.mjTRN_JOINT and m.actuator_trnid[a, 0] == j]
         drivers = [_name(m, mujoco.mjtObj.mjOBJ_ACTUATOR, a) for a in driver_ids]
         if not L.actuator:  # omitted: the one actuator driving the joint (it may have no name)
             if len(driver_ids) != 1:
-                raise ParameterError(f"{p}.actuator", f"the actuator that drives joint {L.joint!r}",
+                raise _refusal(f"{p}.actuator", f"the actuator that drives joint {L.joint!r}",
                                      f"none: joint {L.joint!r} is unactuated (no actuator drives it)"
                                      if not drivers else f"none, and joint {L.joint!r} is driven by {', '.join(drivers)}")
             a = driver_ids[0]
         else:
             a = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_ACTUATOR, L.actuator)
         if a < 0:
-            raise ParameterError(f"{p}.actuator", "an actuator of the model", L.actuator)
+            raise ParameterError(f"{p}.actuator", "an actuator of the model (" + (_names(
+                [_name(m, mujoco.mjtObj.mjOBJ_ACTUATOR, a) for a in range(m.nu)], 12) or "the model has none") + ")", L.actuator)
         actuator = L.actuator or _name(m, mujoco.mjtObj.mjOBJ_ACTUATOR, a)
         if m.actuator_trntype[a] != mujoco.mjtTrn.mjTRN_JOINT or m.actuator_trnid[a, 0] != j:
             target = (f"joint {_name(m, mujoco.mjtObj.mjOBJ_JOINT, int(m.actuator_trnid[a, 0]))!r}"
@@ -103,23 +107,23 @@ def check_model(m: mujoco.MjModel, loops, key: str = "params.loops", constraints
             spring = (_spring_between(m, j, int(m.actuator_trnid[a, 0]))
                       if m.actuator_trntype[a] == mujoco.mjtTrn.mjTRN_JOINT else "")
             if spring:  # a flexible joint: relative degree 4 (5 with an integrating actuator), not r = 2 or 3
-                raise ParameterError(f"{p}.actuator", f"an actuator driving joint {L.joint!r} directly (a user model's "
+                raise _refusal(f"{p}.actuator", f"an actuator driving joint {L.joint!r} directly (a user model's "
                                      "loops are r = 2 or 3; through a spring the relative degree is 4, 5 with an "
                                      "integrating actuator: the shipped model 'flexible_joint')",
                                      f"{actuator!r}, which reaches it through the spring {spring!r}")
-            raise ParameterError(f"{p}.actuator", f"an actuator driving joint {L.joint!r}"
+            raise _refusal(f"{p}.actuator", f"an actuator driving joint {L.joint!r}"
                                  + (f" ({', '.join(drivers)})" if drivers else " (the model has none: an unactuated joint)"),
                                  f"{actuator!r}, which drives {target}")
         if m.actuator_gaintype[a] != mujoco.mjtGain.mjGAIN_FIXED:
-            raise ParameterError(f"{p}.actuator", "an actuator with a fixed gain (gamma from the model)",
+            raise _refusal(f"{p}.actuator", "an actuator with a fixed gain (gamma from the model)",
                                  f"{actuator!r} with gaintype {mujoco.mjtGain(m.actuator_gaintype[a]).name[7:].lower()}")
         if not m.actuator_gainprm[a, 0] * m.actuator_gear[a, 0] > 0:
-            raise ParameterError(f"{p}.actuator", "an actuator with gain x gear > 0 (gamma > 0)",
+            raise _refusal(f"{p}.actuator", "an actuator with gain x gear > 0 (gamma > 0)",
                                  f"{actuator!r} with gain {m.actuator_gainprm[a, 0]:g}, gear {m.actuator_gear[a, 0]:g}")
         dyn = mujoco.mjtDyn(m.actuator_dyntype[a])
         want = mujoco.mjtDyn.mjDYN_INTEGRATOR if L.integrating else mujoco.mjtDyn.mjDYN_NONE
         if dyn != want:
-            raise ParameterError(f"{p}.integrating", f"{str(L.integrating).lower()} only for an actuator with dyntype "
+            raise _refusal(f"{p}.integrating", f"{str(L.integrating).lower()} only for an actuator with dyntype "
                                  f"{'integrator' if L.integrating else 'none'}", f"{actuator!r} with dyntype {dyn.name[6:].lower()}")
         ranges = []
         if m.actuator_ctrllimited[a]:
@@ -131,41 +135,77 @@ def check_model(m: mujoco.MjModel, loops, key: str = "params.loops", constraints
         if m.jnt_actfrclimited[j]:
             ranges.append(f"joint actuatorfrcrange {m.jnt_actfrcrange[j].tolist()}")
         if ranges and not L.saturation:
-            raise ParameterError(f"{p}.saturation", "true to keep the actuator's range as its saturation (a "
+            raise _refusal(f"{p}.saturation", "true to keep the actuator's range as its saturation (a "
                                  "discontinuous law must not be clamped silently), or a model without it",
                                  f"{actuator!r} with {', '.join(ranges)}")
         actuator_ids.append(a)
         if ranges:
             notes.append(f"loop {L.name!r}: {', '.join(ranges)} of actuator {actuator!r} kept as its saturation: "
-                         "the clamped part of the control shows in the recorded phi")
-    for j in range(m.njnt):
-        if m.jnt_type[j] not in (_HINGE, _SLIDE):
-            raise ParameterError(f"{constraints_key}.model", "a model whose joints are all hinge or slide",
-                                 f"joint {_name(m, mujoco.mjtObj.mjOBJ_JOINT, j)!r}, a {_JOINT_TYPES[int(m.jnt_type[j])]} joint")
-    constraints_on = not m.opt.disableflags & mujoco.mjtDisableBit.mjDSBL_CONSTRAINT
-    if constraints_on:
-        ranges = joint_ranges or {}
-        for j in range(m.njnt):
-            if m.jnt_limited[j] and not m.opt.disableflags & mujoco.mjtDisableBit.mjDSBL_LIMIT:
-                name = _name(m, mujoco.mjtObj.mjOBJ_JOINT, j)
-                lo, hi = m.jnt_range[j] + np.array([1.0, -1.0]) * m.jnt_margin[j]  # the limit acts within its margin
-                inside = name in ranges and lo < ranges[name][0] and ranges[name][1] < hi
-                if not inside:
-                    raise ParameterError(f"{constraints_key}.model", "a model without joint limits, or a workspace "
-                                         "[plant.workspace.<joint>] q strictly inside every limit (a limit is a "
-                                         "constraint force that changes the chain's dynamics)",
-                                         f"joint {name!r} limited to [{m.jnt_range[j][0]:.6g}, {m.jnt_range[j][1]:.6g}]"
-                                         + (f", workspace q = {list(ranges[name])}" if name in ranges else ", no workspace"))
-        if m.ntendon and np.any(m.tendon_limited) and not m.opt.disableflags & mujoco.mjtDisableBit.mjDSBL_LIMIT:
-            raise ParameterError(f"{constraints_key}.model", "a model without tendon limits", "a limited tendon")
-        if m.neq and not m.opt.disableflags & mujoco.mjtDisableBit.mjDSBL_EQUALITY:
-            raise ParameterError(f"{constraints_key}.model", "a model without equality constraints",
-                                 f"{m.neq} equality constraint(s)")
-        pair = _contact_pair(m)
-        if pair:
-            raise ParameterError(f"{constraints_key}.model", "a model in which no contact can happen (a contact "
-                                 "changes the chain's dynamics)", pair)
+                         "the log records the control applied (u_applied) beside the law's u")
     return notes, np.array(actuator_ids, dtype=np.int32)
+
+
+class Finding(str):
+    """A finding the plant wrote itself (a sentence, not a value the user typed): the loader shows it
+    whole, never cut to a value's length."""
+
+
+def _refusal(key: str, allowed: str, given) -> ParameterError:
+    """A ParameterError whose finding (a text the plant wrote) is shown whole."""
+    return ParameterError(key, allowed, Finding(given) if isinstance(given, str) else given)
+
+
+def _names(items, most: int = 6) -> str:
+    items = list(items)
+    head = ", ".join(repr(x) for x in items[:most])
+    return head + (f" and {len(items) - most} more" if len(items) > most else "")
+
+
+def beyond_chain(m: mujoco.MjModel, joint_ranges: dict | None = None) -> tuple[list[str], list[str]]:
+    """What of the model lies outside the guarantee of a perturbed chain, and why computed bounds cannot
+    be offered: (items, refusals). items: one phrase per kind of thing MuJoCo may add to the joints'
+    dynamics beyond M(q) q'' = f(q, q') + actuators (contacts that can happen, joint limits, equality
+    constraints, tendon limits, free or ball joints); each is simulated and enters the recorded phi and
+    gamma (the full dynamics, plants/chain.py), but no bound the model states covers it. refusals: the
+    reasons ``phibar = "computed"`` is refused (a joint limit inside the workspace of the bounds is
+    no reason: ``joint_ranges`` {joint: (q_min, q_max)})."""
+    items, refusals = [], []
+    balls = [(_name(m, mujoco.mjtObj.mjOBJ_JOINT, j), _JOINT_TYPES[int(m.jnt_type[j])])
+             for j in range(m.njnt) if m.jnt_type[j] not in (_HINGE, _SLIDE)]
+    if balls:
+        items.append("a floating base or ball joints (" + ", ".join(f"{n!r} {k}" for n, k in balls[:6])
+                     + (f" and {len(balls) - 6} more" if len(balls) > 6 else "") + ")")
+        refusals.append("free or ball joints (the bounds' grid covers hinge and slide joints only)")
+    if m.opt.disableflags & mujoco.mjtDisableBit.mjDSBL_CONSTRAINT:
+        return items, refusals
+    ranges = joint_ranges or {}
+    if not m.opt.disableflags & mujoco.mjtDisableBit.mjDSBL_LIMIT:
+        limited, reached = [], []
+        for j in range(m.njnt):
+            if m.jnt_limited[j]:
+                name = _name(m, mujoco.mjtObj.mjOBJ_JOINT, j)
+                limited.append(name)
+                lo, hi = m.jnt_range[j] + np.array([1.0, -1.0]) * m.jnt_margin[j]  # the limit acts within its margin
+                if not (name in ranges and lo < ranges[name][0] and ranges[name][1] < hi):
+                    reached.append(f"{name!r} [{m.jnt_range[j][0]:.4g}, {m.jnt_range[j][1]:.4g}]")
+        if limited:
+            items.append(f"joint limits ({_names(limited)})")
+        if reached:
+            refusals.append("joint limits the workspace reaches or that have no workspace: " + ", ".join(reached[:6])
+                            + (f" and {len(reached) - 6} more" if len(reached) > 6 else "")
+                            + " (a [plant.workspace.<joint>] q strictly inside each limit removes this)")
+        if m.ntendon and np.any(m.tendon_limited):
+            items.append("tendon limits")
+            refusals.append("tendon limits (a limit force has no bound the model states)")
+    if m.neq and not m.opt.disableflags & mujoco.mjtDisableBit.mjDSBL_EQUALITY:
+        items.append(f"{m.neq} equality constraint(s)")
+        refusals.append("equality constraints (their forces have no bound the model states)")
+    pairs = _contact_pairs(m)
+    if pairs:
+        items.append(f"contacts that can happen ({_names(pairs, 3)})")
+        refusals.append("contacts can happen (a contact force depends on the ground and the impact, not on the "
+                        "joints' state alone, so no bound over a joint workspace covers it)")
+    return items, refusals
 
 
 def _spring_between(m, j1: int, j2: int) -> str:
@@ -179,14 +219,13 @@ def _spring_between(m, j1: int, j2: int) -> str:
     return ""
 
 
-def _contact_pair(m) -> str:
-    """A description of one geom pair that can touch (MuJoCo's filters: contype/conaffinity, same
-    or welded bodies, parent-child, <exclude>, explicit <pair>), "" when none can."""
+def _contact_pairs(m, most: int = 1000) -> list[str]:
+    """The geom pairs that can touch, "a - b" (MuJoCo's filters: contype/conaffinity, same or welded
+    bodies, parent-child, <exclude>, explicit <pair>); at most ``most`` of them, [] when none can."""
     if m.opt.disableflags & mujoco.mjtDisableBit.mjDSBL_CONTACT:
-        return ""
+        return []
     geom = mujoco.mjtObj.mjOBJ_GEOM
-    if m.npair:
-        return f"the explicit contact pair {_name(m, geom, int(m.pair_geom1[0]))!r} - {_name(m, geom, int(m.pair_geom2[0]))!r}"
+    out = [f"{_name(m, geom, int(a))} - {_name(m, geom, int(b))}" for a, b in zip(m.pair_geom1, m.pair_geom2)]
     excluded = {tuple(sorted((int(b1), int(b2)))) for b1, b2 in zip(m.exclude_signature >> 16, m.exclude_signature & 0xFFFF)}
     filter_parent = not m.opt.disableflags & mujoco.mjtDisableBit.mjDSBL_FILTERPARENT
     weld = m.body_weldid
@@ -200,8 +239,10 @@ def _contact_pair(m) -> str:
                 continue
             if filter_parent and w1 and w2 and (int(weld[m.body_parentid[w1]]) == w2 or int(weld[m.body_parentid[w2]]) == w1):
                 continue
-            return f"geoms {_name(m, geom, g1)!r} and {_name(m, geom, g2)!r} can collide (contype/conaffinity)"
-    return ""
+            out.append(f"{_name(m, geom, g1)} - {_name(m, geom, g2)}")
+            if len(out) >= most:
+                return out
+    return out
 
 
 class ChainPlant(Plant):
@@ -222,7 +263,25 @@ class ChainPlant(Plant):
         self.r = 3 if self.integrating else 2
         with_sensors = spec.copy()
         m = _compile(spec)
-        self.notes, self.actuator_ids = check_model(m, loops, key, joint_ranges=joint_ranges)
+        self.notes, self.actuator_ids = check_model(m, loops, key)
+        # what MuJoCo adds beyond the chain (contacts, limits, equality constraints, a floating base):
+        # simulated, and part of the recorded phi and gamma (true_chain: the full dynamics), but no
+        # computed bound covers it (bounds_refusals)
+        self.beyond, self.bounds_refusals = beyond_chain(m, joint_ranges)
+        self.constrained = any(not x.startswith("a floating base") for x in self.beyond)
+        if self.beyond:
+            if self.integrating:
+                raise ParameterError(f"{key}.{loops[0].name}.integrating", "false for a model with " + ", ".join(
+                    self.beyond) + " (r = 3 needs the derivative of q'', which a contact or limit force does not have)",
+                    Finding("true"))
+            if self.bounds_refusals:
+                self.notes.append(f"model {Path(model_name).name!r} has " + "; ".join(self.beyond) + ": simulated by "
+                                  "MuJoCo and part of the recorded phi and gamma (its full dynamics), but not covered "
+                                  "by any bound: give phibar and gamma_m by hand, or use a law that needs none (adaptive)")
+            else:  # joint limits only, the workspace inside every one
+                self.notes.append(f"model {Path(model_name).name!r} has " + "; ".join(self.beyond) + ": simulated by "
+                                  "MuJoCo; the workspace of the bounds lies inside every limit, so the computed bounds "
+                                  "hold while the run stays in it (metrics: workspace_left)")
         self.chain_loops = loops
         self.loop_names = tuple(L.name for L in loops)
         self.joint_ids = np.array([mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, L.joint) for L in loops])
@@ -230,6 +289,19 @@ class ChainPlant(Plant):
         self.qpos_ids = m.jnt_qposadr[self.joint_ids].astype(np.int32)
         # generalized force per unit of ctrl (r = 2) or of act (r = 3): gain x gear
         self.b = m.actuator_gainprm[self.actuator_ids, 0] * m.actuator_gear[self.actuator_ids, 0]
+        # what MuJoCo clamps (saturation = true): ctrl to ctrlrange, then (r = 2) the force to forcerange
+        a = self.actuator_ids
+        inf = np.full(len(a), np.inf)
+        on = m.actuator_ctrllimited[a].astype(bool)
+        self.ctrl_lo, self.ctrl_hi = np.where(on, m.actuator_ctrlrange[a, 0], -inf), np.where(on, m.actuator_ctrlrange[a, 1], inf)
+        fon = m.actuator_forcelimited[a].astype(bool) & (not self.integrating)
+        self.force_lo, self.force_hi = np.where(fon, m.actuator_forcerange[a, 0], -inf), np.where(fon, m.actuator_forcerange[a, 1], inf)
+        self.gainprm = m.actuator_gainprm[a, 0].copy()
+        self.clamps = on | fon  # per loop: the plant may receive another control than the law's u
+        self.clamp_texts = tuple(
+            ", ".join([f"ctrlrange [{lo:g}, {hi:g}]" for lo, hi, c in [(self.ctrl_lo[i], self.ctrl_hi[i], on[i])] if c]
+                      + [f"forcerange [{lo:g}, {hi:g}]" for lo, hi, c in [(self.force_lo[i], self.force_hi[i], fon[i])] if c])
+            or None for i in range(len(a)))
         self._readout = _add_sensors(with_sensors, m, loops, self.r, key)
         super().__init__(with_sensors)
         self.model_name = model_name
@@ -240,6 +312,17 @@ class ChainPlant(Plant):
         self.gamma_units = "actuator gain factor (dimensionless, nominal 1; chain gamma = factor x gain x gear x (M^-1)_ii)"
         self._scratch = {}  # id(model) -> (model, private MjData) for the central difference (r = 3)
         self.workspace = None
+
+    def applied(self, u: np.ndarray, gain: np.ndarray) -> np.ndarray:
+        """The control each loop's actuator applies for the law's u (chain units) and gain factors: MuJoCo
+        clamps ctrl = gain u to the ctrlrange and (r = 2) the force gainprm ctrl to the forcerange; u
+        itself, bit for bit, where nothing clamps (the C twin: kernel.c chain_applied). A joint's
+        actuatorfrcrange and an actrange are not in it (a note says so)."""
+        c = gain * u
+        cc = np.minimum(np.maximum(c, self.ctrl_lo), self.ctrl_hi)
+        f = self.gainprm * cc
+        fc = np.minimum(np.maximum(f, self.force_lo), self.force_hi)
+        return np.where(fc != f, fc / (self.gainprm * gain), np.where(cc != c, cc / gain, u))
 
     def bind(self, m):
         """The sensor readout of z in m's sensordata (plants/base.py: compile calls it)."""
@@ -267,7 +350,10 @@ class ChainPlant(Plant):
                 z[i, j] = acc
 
     def true_chain(self, m, d, u, gain, phi_inj):
-        """Inside the callback, after ctrl (and the r = 2 disturbance) of the sample were written."""
+        """Inside the callback, after ctrl (and the r = 2 disturbance) of the sample were written.
+        ``u``: the control the plant receives (u_applied)."""
+        if self.constrained:
+            return self._full_chain(m, d, u, gain)
         _smooth_acc(m, d)
         minv = _minv_cols(m, d, self.dof_ids)
         gamma = np.empty(self.n)
@@ -291,6 +377,40 @@ class ChainPlant(Plant):
             acc.append(s.qacc_smooth[self.dof_ids].copy())
         return (acc[0] - acc[1]) / (2.0 * EPS) - gamma * u, gamma
 
+    def _full_chain(self, m, d, u, gain):
+        """phi and gamma from MuJoCo's full dynamics (contact, limit and equality forces included), on a
+        private MjData holding d's state: q'' = qacc after the constraint solver, gamma_i = g_i b_i
+        d q''_i / d tau_i (the constraints included) by a central difference of a generalized force
+        on the loop's dof (+-TAU_STEP, the active constraints held: the constraint solver's answer is
+        piecewise linear in it), and phi_i = q''_i - gamma_i u_i. d itself is not touched (its own
+        solver starts from its warmstart as without this)."""
+        s = self._scratch_data(m)
+        for name in ("qpos", "qvel", "qfrc_applied", "act", "ctrl"):
+            getattr(s, name)[:] = getattr(d, name)
+        warm = d.qacc_warmstart.copy()
+        mujoco.mj_fwdPosition(m, s)
+        mujoco.mj_fwdVelocity(m, s)
+
+        def acc():
+            s.qacc_warmstart[:] = warm
+            mujoco.mj_fwdActuation(m, s)
+            mujoco.mj_fwdAcceleration(m, s)
+            mujoco.mj_fwdConstraint(m, s)
+            return s.qacc[self.dof_ids].copy()
+
+        qacc = acc()
+        gamma = np.empty(self.n)
+        for i in range(self.n):
+            dof = self.dof_ids[i]
+            base = s.qfrc_applied[dof]
+            s.qfrc_applied[dof] = base + TAU_STEP
+            plus = acc()[i]
+            s.qfrc_applied[dof] = base - TAU_STEP
+            minus = acc()[i]
+            s.qfrc_applied[dof] = base
+            gamma[i] = gain[i] * self.b[i] * (plus - minus) / (2.0 * TAU_STEP)
+        return qacc - gamma * u, gamma
+
     def _scratch_data(self, m):
         entry = self._scratch.get(id(m))
         if entry is None or entry[0] is not m:
@@ -302,7 +422,9 @@ class ChainPlant(Plant):
         """What the native callback needs to replace sense and true_chain (native/run.py): the sensor
         readout (adr, w: (n, r, K) indices into sensordata, -1 unused, and weights) and the chain map
         (dof ids, qpos ids, actuator ids, b). ``m`` may be None (a question about the plant only)."""
-        return {"adr": self._adr, "w": self._w, "dof": self.dof_ids, "act": self.actuator_ids, "b": self.b}
+        return {"adr": self._adr, "w": self._w, "dof": self.dof_ids, "act": self.actuator_ids, "b": self.b,
+                "clamp": {"on": self.clamps, "ctrl": (self.ctrl_lo, self.ctrl_hi), "force": (self.force_lo, self.force_hi),
+                          "gainprm": self.gainprm}}
 
     def loop_workspace(self, i: int, ref: float) -> dict | None:
         ws = self.workspace
@@ -317,17 +439,28 @@ class ChainPlant(Plant):
 
     @property
     def unbounded_reason(self) -> str:
-        """Why the bounds are infinite ("" when they are not known to be): the loader's message."""
+        """Why the bounds are infinite ("" when they are not known to be), every reason in one line."""
+        reasons = list(self.bounds_refusals)
         if self.workspace is None:
-            return ("no workspace for the bounds: [plant.workspace.<joint>] q, qd_max"
-                    + (", qdd_max" if self.integrating else "") + " for every joint and u_max in every [plant.loops.<name>]")
-        return "dry friction: its rate jumps, so phi of r = 3 has no finite bound" if self.integrating else ""
+            reasons.append(self.missing_workspace())
+        elif self.integrating and np.any(self._friction(None) > 0):
+            reasons.append("dry friction: its rate jumps, so phi of r = 3 has no finite bound")
+        return "; ".join(reasons)
+
+    def missing_workspace(self) -> str:
+        """What the workspace of the bounds lacks (the arm's is built in: never missing)."""
+        return ("no workspace for the bounds: [plant.workspace.<joint>] q, qd_max"
+                + (", qdd_max" if self.integrating else "") + " for every joint and u_max in every [plant.loops.<name>]")
+
+    def _friction(self, m):
+        m = m if m is not None else self.compile(0.001)[0]
+        return np.asarray(m.dof_frictionloss, dtype=float)
 
     def true_bounds(self, phi_bounds, gamma_bounds):
         from ftstab_mj.plants.chain_bounds import chain_bounds
 
         n = self.n
-        if self.workspace is None:
+        if self.workspace is None or self.bounds_refusals:
             return np.full(n, np.inf), np.zeros(n), np.full(n, np.inf)
         return chain_bounds(self, phi_bounds, gamma_bounds)
 

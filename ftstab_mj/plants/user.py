@@ -16,8 +16,12 @@ Scenario keys (the loader resolves the path relative to the scenario file)::
     qd_max = 2.0                    # rad/s or m/s
     qdd_max = 5.0                   # rad/s^2 or m/s^2 (r = 3)
 
-The chain map and the refusals are plants/chain.py's; without a workspace for every joint the
-bounds are infinite (``phibar = "computed"`` is refused, Theorem 3 is not checked).
+The chain map and the refusals are plants/chain.py's. Contacts, joint limits, equality constraints,
+tendon limits and free or ball joints are simulated (their forces are part of the recorded phi and
+gamma) and said in a note (plant.notes), never refused; they make the computed bounds infinite.
+Without a workspace for every hinge and slide joint the bounds are infinite too: only
+``phibar = "computed"`` (or ``gamma_m``) needs one, and its refusal names every joint and loop that
+lacks it at once.
 
 The run log records the model's XML (RunInfo.model_xml); ``ftstab replay --verify`` re-runs from
 it (:func:`recorded_model`) when the file is gone or changed. Mesh and texture files the model
@@ -199,12 +203,32 @@ class UserPlant(ChainPlant):
             j = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, joint)
             if j < 0:
                 raise ParameterError(key, "a joint of the model", joint)
+            if int(m.jnt_type[j]) not in (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE)):
+                raise ParameterError(key, "a hinge or slide joint (a free or ball joint has no interval of q)", joint)
             dof = m.jnt_dofadr[j]
             q_min[dof], q_max[dof] = ranges[joint]
             qd_max[dof] = _num(body.get("qd_max"), f"{key}.qd_max", positive=True)
             if self.integrating:
                 qdd_max[dof] = _num(body.get("qdd_max"), f"{key}.qdd_max")
+        self._missing = ([_name_of(m, mujoco.mjtObj.mjOBJ_JOINT, j) for j in range(m.njnt)
+                          if int(m.jnt_type[j]) in (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE))
+                          and np.isnan(q_min[m.jnt_dofadr[j]])],
+                         [L for L, u in zip(self.loop_names, u_max) if u is None])
         if np.any(np.isnan(q_min)) or any(u is None for u in u_max):
             return None
         return Workspace(q_min=q_min, q_max=q_max, qd_max=qd_max, u_max=np.array(u_max),
                          qdd_max=qdd_max if self.integrating else None, grid=grid, qd_grid=qd_grid)
+
+    def missing_workspace(self) -> str:
+        joints, loops = getattr(self, "_missing", ([], []))
+        parts = []
+        if joints:
+            parts.append("[plant.workspace.<joint>] q = [low, high], qd_max" + (", qdd_max" if self.integrating else "")
+                         + " for " + ", ".join(repr(j) for j in joints))
+        if loops:
+            parts.append("u_max in [plant.loops.<name>] for " + ", ".join(repr(L) for L in loops))
+        return "no workspace for the bounds: add " + " and ".join(parts) if parts else super().missing_workspace()
+
+
+def _name_of(m, objtype, i) -> str:
+    return mujoco.mj_id2name(m, objtype, i) or f"#{i}"

@@ -26,6 +26,7 @@ from ftstab_mj.config import keypath
 from ftstab_mj.control import LAWS, law_class
 from ftstab_mj.control.law import COMPUTED
 from ftstab_mj.plants.disturbances import KEYS_BY_KIND, MAX_VALUE, Signal
+from ftstab_mj.plants.reference import KEYS_BY_KIND as REFERENCE_KEYS, Reference
 from ftstab_mj.config.errors import ParameterError, ScenarioError, describe
 from ftstab_mj.simulation.records import MetricSettings
 from ftstab_mj.scenario.schema import (
@@ -48,7 +49,27 @@ class _Reader(Reader):
             return SensorSpec(**self.fields_of(tp, value, path, skip=SIGNAL_DERIVED))
         if tp is ControllerSpec:
             return self.controller(value, path)
+        if tp is Reference:
+            return self.reference(value, path)
         return NotImplemented
+
+    def reference(self, value, path) -> Reference:
+        """[loops.<name>.reference]: a kind and only the keys that kind uses."""
+        if not isinstance(value, dict):
+            raise self.error(path, "a table with kind = " + " | ".join(REFERENCE_KEYS) + " and its keys", describe(value))
+        kind = value.get("kind", "constant")
+        if kind not in REFERENCE_KEYS:
+            raise self.error(keypath.join(path, "kind"), "one of " + ", ".join(REFERENCE_KEYS), describe(kind))
+        applies = REFERENCE_KEYS[kind]
+        for key in value:
+            if key != "kind" and key not in applies:
+                raise self.error(keypath.join(path, key), f"only keys that a {kind} reference uses ("
+                                 + ", ".join(("kind",) + applies) + ")", f"{key} = {describe(value[key])}")
+        kw = self.fields_of(Reference, value, path)
+        try:
+            return Reference(**kw)
+        except ParameterError as exc:
+            raise self.error(keypath.join(path, exc.name), exc.allowed, describe(exc.given)) from None
 
     def controller(self, value, path) -> ControllerSpec:
         """[loops.<name>.controller]: ``law``, then that law's declared parameters (Param: type, check,
@@ -122,6 +143,9 @@ class _Reader(Reader):
                 raise self.error(keypath.join(p, "name"), "no 'name' key (the table key is the loop name)",
                                  "a 'name' key")
             self.known_law(body.get("controller"), keypath.join(p, "controller"))
+            if "ref" in body and "reference" in body:
+                raise self.error(keypath.join(p, "ref"), f"either ref (a set point) or a [{p}.reference] table, not both",
+                                 f"ref = {describe(body['ref'])} and a reference table")
             out.append(LoopSpec(name=name, **self.fields_of(LoopSpec, body, p, skip=("name",))))
         return tuple(out)
 
@@ -265,8 +289,10 @@ def _check_plant(sc: Scenario, rd: _Reader):
     try:
         plant = make_plant(sc.plant.model, sc.plant.params)
     except ParameterError as exc:  # names "model" or "params.<key>"
+        from ftstab_mj.plants.chain import Finding  # a sentence of the plant's: shown whole, not cut to a value's length
+
         key = exc.name.removeprefix("params.")
-        raise rd.error(f"plant.{key}", exc.allowed, describe(exc.given)) from None
+        raise rd.error(f"plant.{key}", exc.allowed, exc.given if isinstance(exc.given, Finding) else describe(exc.given)) from None
     except ValueError as exc:  # MuJoCo's compiler refused the model these parameters make
         raise rd.error("plant", "parameters MuJoCo can compile a model from",
                        f"MuJoCo: {str(exc).removeprefix('Error: ').splitlines()[0]}") from None
@@ -291,7 +317,10 @@ def _computed_bounds(sc: Scenario, plant, rd: _Reader) -> Scenario:
     ordered = [by_name[n] for n in plant.loop_names]  # true_bounds takes the plant's loop order
     phibar, gamma_m, _ = plant.true_bounds([lp.disturbance.bounds() for lp in ordered],
                                            [lp.gain.bounds() for lp in ordered])
-    value = {(n, "phibar"): float(phibar[k]) for k, n in enumerate(plant.loop_names)}
+    # a tracked reference's ref^(r) is part of the error chain's phi (plants/reference.py)
+    extra = {lp.name: float(lp.reference.max_abs(plant.r, sc.sim.duration)[plant.r])
+             for lp in ordered if lp.reference is not None and not lp.reference.constant}
+    value = {(n, "phibar"): float(phibar[k]) + extra.get(n, 0.0) for k, n in enumerate(plant.loop_names)}
     value.update({(n, "gamma_m"): float(gamma_m[k]) for k, n in enumerate(plant.loop_names)})
     loops = list(sc.loops)
     for i, name, bound in wanted:
@@ -407,6 +436,8 @@ def scenario_to_dict(sc: Scenario) -> dict:
             return {"kind": obj.kind, **{k: getattr(obj, k) for k in KEYS_BY_KIND[obj.kind]}}
         if isinstance(obj, ControllerSpec):
             return {"law": obj.law, **{k: plain(v) for k, v in obj.params if v is not None}}
+        if isinstance(obj, Reference):  # the keys its kind uses, as a Signal
+            return {"kind": obj.kind, **{k: plain(getattr(obj, k)) for k in REFERENCE_KEYS[obj.kind]}}
         if is_dataclass(obj):
             skip = skip + (SIGNAL_DERIVED if isinstance(obj, SensorSpec) else ())
             return {f.name: plain(getattr(obj, f.name)) for f in fields(obj)
@@ -417,5 +448,5 @@ def scenario_to_dict(sc: Scenario) -> dict:
 
     d = plain(sc, skip=("plant", "loops") + (() if sc.plugins else ("plugins",)))  # logs without plugins unchanged
     d["plant"] = {"model": sc.plant.model, **sc.plant.params}
-    d["loops"] = {lp.name: plain(lp, skip=("name",)) for lp in sc.loops}
+    d["loops"] = {lp.name: plain(lp, skip=("name",) + (("ref",) if lp.reference is not None else ())) for lp in sc.loops}
     return d

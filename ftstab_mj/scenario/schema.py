@@ -10,6 +10,7 @@ A scenario file (``scenarios/*.toml``) maps onto :class:`Scenario`::
     [loops.<name>.controller]          -> ControllerSpec  (law + that law's declared parameters)
     [loops.<name>.disturbance]         -> disturbances.Signal (the injected disturbance)
     [loops.<name>.gain]                -> disturbances.Signal (the actuator gain factor)
+    [loops.<name>.reference]           -> reference.Reference (ref(t) to track; default: the set point ref)
     [loops.<name>.sensor]              -> SensorSpec    (what the controller reads; default: the exact z)
     [loops.<name>.observer]            -> ObserverSpec  (Levant's differentiator; default: none)
     [loops.<name>.actuator]            -> ActuatorSpec  (what the plant receives; default: the law's u)
@@ -29,6 +30,7 @@ from dataclasses import dataclass, field
 
 from ftstab_mj.control.law import Law, law_class
 from ftstab_mj.plants.disturbances import Signal
+from ftstab_mj.plants.reference import Reference
 from ftstab_mj.simulation.records import MetricSettings
 from ftstab_mj.config.validate import box_count, fraction, identifier, non_negative, one_line, one_of, positive, state_limit, time_step
 
@@ -186,6 +188,9 @@ class LoopSpec:
     gain: Signal = field(default=Signal("constant", 1.0), metadata=meta(
         "actuator gain factor (cart: gamma in chain units; arm: dimensionless); default 1"))
     ref: float = field(default=0.0, metadata=meta("set point of the joint position (m or rad): z_1 = q - ref"))
+    reference: Reference | None = field(default=None, metadata=meta(
+        "a reference to track instead of ref: kind constant | sine | polynomial | min_jerk; "
+        "z_i = q^(i-1) - ref^(i-1)(t)"))
     sensor: SensorSpec | None = field(default=None, metadata=meta("the sensor model; default: the exact z"))
     observer: ObserverSpec | None = field(default=None, metadata=meta("the observer; default: none"))
     actuator: ActuatorSpec | None = field(default=None, metadata=meta("the actuator model; default: ideal"))

@@ -66,6 +66,12 @@ class LoopInfo:
     stages: dict | None = None
     # The work limit of this loop's certificate (the run's MetricSettings.certificate_boxes)
     certificate_boxes: int = RUN_CERTIFICATE_BOXES
+    # What the plant's own actuator clamps (a user model's ctrlrange/forcerange kept as its
+    # saturation), None when nothing does: such a loop records u_applied, the control received.
+    clamp: str | None = None
+    # A reference to track (z_i = q^(i-1) - ref^(i-1)(t)): {"kind", its parameters, "max_abs": max
+    # |ref^(j)| for j = 0..r}, None for a set point (``ref``).
+    reference: dict | None = None
 
 
 @dataclass(frozen=True)
@@ -110,8 +116,9 @@ class RunInfo:
     def to_dict(self) -> dict:
         d = asdict(self)
         for lp in d["loops"]:  # an ideal loop is described as before loop stages existed
-            if lp.get("stages") is None:
-                lp.pop("stages", None)
+            for key in ("stages", "clamp", "reference"):  # (and clamps and references)
+                if lp.get(key) is None:
+                    lp.pop(key, None)
         return d
 
     @classmethod
@@ -180,7 +187,7 @@ METRIC_UNITS = {
     "chattering_du_dt_var": "(u/s)^2", "chattering_zero_crossings": "1/s", "chattering_band_rms": "u",
     "effort_abs": "u s", "effort_sq": "u^2 s", "u_max_abs": "u", "eps": "chain", "eps_entry_time": "s",
     "V1_min_after_entry": "chain", "V1_max_after_entry": "chain", "phi_hat_max": "u", "phi_hat_final": "u",
-    "certificate": "", "bound_applies_reason": "", "u_needed": "u", "estimation_error_max": "chain",
+    "certificate": "", "clamp": "", "bound_applies_reason": "", "u_needed": "u", "estimation_error_max": "chain",
     "estimation_error_rms": "chain", "time_saturated": "s", "saturated_fraction": "", "chattering_applied": "u/s",
     "u_applied_max_abs": "u",
     # theorem 3 (true bounds)

@@ -123,6 +123,10 @@ class Simulation:
         self.stages = tuple(build_stages(L.sensor, L.observer, L.actuator, r, self.period, self.N, stream=i)
                             for i, L in enumerate(self.loops))
         self._staged = any(st is not None for st in self.stages)
+        # loops whose actuator MuJoCo clamps (a user model's ctrlrange/forcerange kept as its saturation):
+        # they record u_applied, the control the plant received, and the true phi is taken with it
+        clamps = getattr(plant, "clamps", None)
+        self._clamped = tuple(i for i in range(plant.n) if clamps is not None and clamps[i])
         # userdata: each law's state (loop i at state_slices[i]), then each loop's stage state
         # (stage_slices[i]), so that mjSTATE_INTEGRATION saves and restores both
         sizes = [law.state_size for law in self.laws] + [st.state_size if st else 0 for st in self.stages]
@@ -133,9 +137,18 @@ class Simulation:
         for law, sl in zip(self.laws, self.state_slices):
             self.data.userdata[sl] = law.initial_state()
         self.integrator = integrator
-        self.refs = np.array([float(L.ref) for L in self.loops])
+        # the references: a set point (``ref``, or a constant [reference]) or ref(t) to track
+        self.references = tuple(getattr(L, "reference", None) for L in self.loops)
+        self.refs = np.array([float(L.ref) if ref is None or not ref.constant else float(ref.value)
+                              for L, ref in zip(self.loops, self.references)])
+        self._tracking = any(ref is not None and not ref.constant for ref in self.references)
+        self._R = None  # per batch: the references' table (advance)
         z0 = np.array([L.z0 if len(L.z0) else np.zeros(r) for L in self.loops], dtype=float)
-        plant.set_initial(self.model, self.data, self.refs + z0[:, 0], z0)
+        if self._tracking:  # q^(j)(0) = ref^(j)(0) + z0_(j+1)
+            R0 = self._reference_table(np.zeros(1))[0]
+            plant.set_initial(self.model, self.data, R0[:, 0] + z0[:, 0], z0 + R0[:, :r])
+        else:
+            plant.set_initial(self.model, self.data, self.refs + z0[:, 0], z0)
         self._body_ids = np.array([mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_BODY, b)
                                    for b in plant.body_names], dtype=int)
         self._z = np.empty((n, r))
@@ -155,6 +168,17 @@ class Simulation:
         self._native = self._native_run(native)
         # one object, so "is it installed" is an identity test
         self.callback = self._control if self._native is None else self._native.callback
+
+    def _reference_table(self, t) -> np.ndarray:
+        """(len(t), n, r + 1): ref^(j)(t) of every loop, j = 0..r (a set point: ref, then zeros)."""
+        r = self.plant.r
+        out = np.zeros((len(t), self.plant.n, r + 1))
+        for i, ref in enumerate(self.references):
+            if ref is None or ref.constant:
+                out[:, i, 0] = self.refs[i]
+            else:
+                out[:, i, :] = ref.derivatives(t, r)
+        return out
 
     def _native_run(self, native):
         """The native callback (ftstab_mj/simulation/native/run.py) when ``native`` (True | False | "auto") asks
@@ -199,22 +223,58 @@ class Simulation:
         return tuple(by_name[name] for name in plant.loop_names), tuple(laws[name] for name in plant.loop_names)
 
     # -- description ------------------------------------------------------------------------------
-    def run_info(self, scenario: dict | None = None, metric_settings: MetricSettings | None = None) -> RunInfo:
+    def run_info(self, scenario: dict | None = None, metric_settings: MetricSettings | None = None,
+                 duration: float | None = None) -> RunInfo:
+        """The run's description; ``duration`` (s): the horizon over which a tracked reference's
+        derivatives are bounded (its ref^(r) is part of phi: true_phibar includes max |ref^(r)|)."""
         phibar, gm, gM = self.plant.true_bounds([L.disturbance.bounds() for L in self.loops],
                                                 [L.gain.bounds() for L in self.loops])
         metric_settings = metric_settings or MetricSettings()
         infos = []
         for i, (L, law) in enumerate(zip(self.loops, self.laws)):
+            ref = self.references[i]
+            if ref is not None and not ref.constant:
+                described = ref.describe(law.r, duration if duration is not None else 0.0)
+                infos.append(LoopInfo(name=L.name, r=law.r, law=law.name, hong=law.base_info(),
+                                      law_params=law.param_values(),
+                                      true_phibar=float(phibar[i]) + described["max_abs"][law.r],
+                                      true_gamma_m=float(gm[i]), true_gamma_M=float(gM[i]),
+                                      workspace=self._tracking_workspace(i, ref, described["max_abs"], duration),
+                                      stages=None if self.stages[i] is None else describe_stages(
+                                          self.stages[i], law, L.z0 if len(L.z0) else np.zeros(law.r)),
+                                      certificate_boxes=metric_settings.certificate_boxes,
+                                      clamp=self.plant.clamp_texts[i] if i in self._clamped else None,
+                                      reference=described))
+                continue
             infos.append(LoopInfo(name=L.name, r=law.r, law=law.name, hong=law.base_info(),
                                   law_params=law.param_values(), true_phibar=float(phibar[i]),
                                   true_gamma_m=float(gm[i]), true_gamma_M=float(gM[i]),
                                   workspace=self.plant.loop_workspace(i, float(L.ref)),
                                   stages=None if self.stages[i] is None else describe_stages(
                                       self.stages[i], law, L.z0 if len(L.z0) else np.zeros(law.r)),
-                                  certificate_boxes=metric_settings.certificate_boxes))
+                                  certificate_boxes=metric_settings.certificate_boxes,
+                                  clamp=self.plant.clamp_texts[i] if i in self._clamped else None))
         return RunInfo(scenario=dict(scenario or {}), loops=tuple(infos), period=self.period,
                        physics_step=self.physics_step, metric_settings=metric_settings,
                        model_xml=self.model_xml, body_names=tuple(self.plant.body_names))
+
+    def _tracking_workspace(self, i: int, ref, max_abs, duration) -> dict | None:
+        """Where loop i's bounds hold, in the error chain of a tracked reference: q = z_1 + ref(t) stays in
+        [q_min, q_max] for every ref(t) when z_1 is in [q_min - ref_min, q_max - ref_max], and
+        |q^(j)| <= its bound when |z_(j+1)| <= the bound - max |ref^(j)| (0 when the reference alone
+        exceeds it: the run then leaves the workspace at once)."""
+        t = np.linspace(0.0, duration or 0.0, 2001)
+        q = ref.derivatives(t, 0)[:, 0]
+        lo, hi = self.plant.loop_workspace(i, float(q.min())), self.plant.loop_workspace(i, float(q.max()))
+        if lo is None or hi is None:
+            return None
+        out = dict(lo)
+        out["z1_max"] = hi["z1_max"]
+        for key, v in lo.items():
+            if key.startswith("z") and key.endswith("_abs_max"):
+                j = int(key[1:key.index("_")]) - 1  # z_(j+1) = q^(j) - ref^(j)
+                out[key] = max(0.0, float(v) - (max_abs[j] if j < len(max_abs) else 0.0))
+        return out
 
     # -- state ------------------------------------------------------------------------------------
     @property
@@ -265,6 +325,8 @@ class Simulation:
         # step (integrating plants: F_d' = scale phi held over the step), and ctrl (filled at samples).
         self._force = self._inj * self._force_factor
         self._ctrl = np.zeros((n_samples * N, n))
+        # a tracked reference: ref^(j)(t_k), j = 0..r, of every loop at every sample (None: set points)
+        self._R = np.ascontiguousarray(self._reference_table(self._t)) if self._tracking else None
         self._start_batch(n_samples)
         warn0 = self._warning_count()
         if self._native is None:
@@ -272,6 +334,8 @@ class Simulation:
         else:  # the same work, in C, inside one mj_step(nstep) call
             self._native.clear_rows()  # before the try: the finally below must never see the last batch's count
             self._native.stage_batch(k0, self._rec)
+            self._native.record_applied(self._rec)
+            self._native.reference_batch(self._R)
             try:
                 self._native.run_batch(m, d, self._t, self._inj, self._gain, self._force, self._ctrl, self._rec_t,
                                        self._rec_z, [self._rec_scalars[f] for f in _SCALARS], self._pos, self._quat)
@@ -340,6 +404,8 @@ class Simulation:
             if st is not None:
                 rec.update(z_measured=np.empty((n_samples, st.channels)), z_hat=np.empty((n_samples, st.r)),
                            u_applied=np.empty(n_samples))
+        for i in self._clamped:  # ... and a loop whose actuator clamps, what the plant received
+            recs[i].setdefault("u_applied", np.empty(n_samples))
         self._rec = recs
 
     def take_batch(self) -> SampleBatch:
@@ -369,7 +435,7 @@ class Simulation:
         A stage acting on z (sensor, observer) or on u (actuator) goes between two of these steps."""
         row = self._row + 1
         t = self._t[row]
-        z = self._read_z(d)
+        z = self._read_z(d, row)
         zmax = float(np.max(np.abs(z)))
         if not zmax <= self.divergence_limit:  # also catches NaN
             self._stop(d, f"diverged at t = {t:.6g} s: max |z| = {zmax:.3g} is beyond the divergence "
@@ -381,11 +447,15 @@ class Simulation:
         self._actuate(d, row)
         self._inject(m, d, row)
 
-    def _read_z(self, d) -> np.ndarray:
-        """The chain states (n, r) the laws see: the plant's sensors, z_1 relative to the set point."""
+    def _read_z(self, d, row: int) -> np.ndarray:
+        """The chain states (n, r) the laws see: the plant's sensors, z_1 relative to the set point (a
+        tracked reference: z_i = q^(i-1) - ref^(i-1)(t) at this sample)."""
         z = self._z
         self.plant.sense(d, z)
-        z[:, 0] -= self.refs
+        if self._R is not None:
+            z -= self._R[row, :, :-1]
+        else:
+            z[:, 0] -= self.refs
         return z
 
     def _sense(self, d, z, row: int) -> np.ndarray:
@@ -450,7 +520,13 @@ class Simulation:
         d.ctrl[self._act] = self._ctrl[s]
         if not self.plant.integrating:
             d.qfrc_applied[self._dof] = self._force[s]
+        if self._clamped:  # what MuJoCo's actuator applies (its ctrlrange, forcerange): the phi of the chain
+            u = self.plant.applied(u, self._gain[s])  # is the rest of q^(r) (h (phi + gamma u_applied) per period)
+            for i in self._clamped:
+                self._rec[i]["u_applied"][row] = u[i]
         phi, gamma = self.plant.true_chain(m, d, u, self._gain[s], self._inj[s])
+        if self._R is not None:  # the error chain's: z_r' = q^(r) - ref^(r)
+            phi = phi - self._R[row, :, -1]
         for i, rec in enumerate(self._rec):
             rec["phi"][row] = phi[i]
             rec["gamma"][row] = gamma[i]
@@ -496,7 +572,7 @@ class Run:
             raise ParameterError("batch_size", "an integer >= 1", batch_size)
         self.sim, self.batch_size = sim, int(batch_size)
         self.n_total = sample_count(duration, sim.period)
-        self.info = sim.run_info(scenario_dict, metric_settings)
+        self.info = sim.run_info(scenario_dict, metric_settings, duration=self.n_total * sim.period)
         self.status: str | None = None  # None while running
         self.message = ""
         self.done = 0

@@ -228,6 +228,9 @@ def table_row(params, result: dict, loop: str, grid_path: str | None) -> dict:
     for i, v in enumerate(m.get("final_abs_z_max") or []):
         row[f"final_abs_z{i + 1}"] = v
     row.update(effort_sq=m.get("effort_sq"), u_max_abs=m.get("u_max_abs"))
+    if m.get("clamp"):  # the plant's actuator clamps: what it received, beside the law's u_max_abs
+        row.update(u_applied_max_abs=m.get("u_applied_max_abs"), chattering_applied=m.get("chattering_applied"),
+                   saturated_fraction=m.get("saturated_fraction"))
     for key, col in INDICES:
         row[col] = m.get(key)
     row["elapsed_s"] = result.get("elapsed_s")

@@ -417,7 +417,29 @@ typedef struct {
     const double *s_qacc_smooth;
     double eps;
     double *work;                /* 2 n nv + 3 nv + 2 n doubles */
+    /* the actuators' clamps (NULL: none clamps): ctrl = gain u to [ctrl_lo, ctrl_hi], then the force
+     * gainprm ctrl to [force_lo, force_hi] (plants/chain.py ChainPlant.applied) */
+    const int32_t *clamp_on;
+    const double *ctrl_lo, *ctrl_hi, *force_lo, *force_hi, *gainprm;
+    /* full != 0: the model has contacts, limits or equality constraints; phi and gamma come from the
+     * constraint solver on the private MjData (plants/chain.py ChainPlant._full_chain) */
+    int32_t full;
+    ft_mjfn fwd_constraint;
+    const double *qacc_warmstart;
+    double *s_qacc_warmstart, *warm;
+    const double *s_qacc;
+    double tau_step;
 } ft_chain;
+
+/* The control loop i's actuator applies for the law's u: ChainPlant.applied, operation for operation. */
+static inline double chain_applied(const ft_chain *C, int i, double u, double gain) {
+    const double c = gain * u;
+    const double cc = fmin(fmax(c, C->ctrl_lo[i]), C->ctrl_hi[i]);
+    const double f = C->gainprm[i] * cc;
+    const double fc = fmin(fmax(f, C->force_lo[i]), C->force_hi[i]);
+    if (fc != f) return fc / (C->gainprm[i] * gain);
+    return cc != c ? cc / gain : u;
+}
 
 static inline double chain_read(const ft_chain *C, const double *sensordata, int i, int j, int r) {
     double acc = 0.0;
@@ -427,9 +449,52 @@ static inline double chain_read(const ft_chain *C, const double *sensordata, int
     return acc;
 }
 
+/* q'' of the loops' dofs after the constraint solver on the private MjData, from d's warmstart. */
+static void chain_full_acc(const ft_chain *C, const void *m, int n, double *out) {
+    for (int c = 0; c < C->nv; c++) C->s_qacc_warmstart[c] = C->warm[c];
+    C->fwd_actuation(m, C->s);
+    C->fwd_acceleration(m, C->s);
+    C->fwd_constraint(m, C->s);
+    for (int i = 0; i < n; i++) out[i] = C->s_qacc[C->dof[i]];
+}
+
+/* ChainPlant._full_chain, operation for operation. */
+static void chain_full(const ft_chain *C, const void *m, int n, const double *u, const double *gain,
+                       double *phi, double *gamma) {
+    for (int c = 0; c < C->nq; c++) C->s_qpos[c] = C->qpos[c];
+    for (int c = 0; c < C->nv; c++) {
+        C->s_qvel[c] = C->qvel[c];
+        C->s_qfrc_applied[c] = C->qfrc_applied[c];
+        C->warm[c] = C->qacc_warmstart[c];
+    }
+    for (int c = 0; c < C->na; c++) C->s_act[c] = C->act_state[c];
+    for (int c = 0; c < C->nu; c++) C->s_ctrl[c] = C->ctrl[c];
+    C->fwd_position(m, C->s);
+    C->fwd_velocity(m, C->s);
+    double qacc[FT_MAXLOOPS], acc[FT_MAXLOOPS];
+    chain_full_acc(C, m, n, qacc);
+    for (int i = 0; i < n; i++) {
+        const int dof = C->dof[i];
+        const double base = C->s_qfrc_applied[dof];
+        C->s_qfrc_applied[dof] = base + C->tau_step;
+        chain_full_acc(C, m, n, acc);
+        const double plus = acc[i];
+        C->s_qfrc_applied[dof] = base - C->tau_step;
+        chain_full_acc(C, m, n, acc);
+        const double minus = acc[i];
+        C->s_qfrc_applied[dof] = base;
+        gamma[i] = gain[i] * C->b[i] * (plus - minus) / (2.0 * C->tau_step);
+    }
+    for (int i = 0; i < n; i++) phi[i] = qacc[i] - gamma[i] * u[i];
+}
+
 /* phi, gamma (n,) of the sample, after its ctrl (and r = 2 disturbance) were written into d. */
 static void chain_truth(const ft_chain *C, const void *m, void *d, int n, const double *u, const double *gain,
                         const double *inj, double *phi, double *gamma) {
+    if (C->full) {
+        chain_full(C, m, n, u, gain, phi, gamma);
+        return;
+    }
     const int nv = C->nv;
     double *e = C->work, *x = e + n * nv, *acc = x + n * nv, *rate = acc + 2 * n, *qacc = rate + nv;
     C->fwd_actuation(m, d);
@@ -529,6 +594,7 @@ typedef struct {
     double *u_steps;             /* (N,) scratch: the actuator's output at each step of the period */
     double *rec_zm[FT_MAXLOOPS], *rec_zh[FT_MAXLOOPS], *rec_ua[FT_MAXLOOPS]; /* (samples, m), (samples, r), (samples,) */
     const ft_chain *chain;       /* a chain plant's readout and truth (NULL: z from sensor_adr, phi from inj) */
+    const double *ref_table;     /* (samples, n, r + 1) ref^(j)(t_k) of tracked references; NULL: set points refs */
 } ft_run;
 
 /* The ctrl and qfrc_applied index of loop i. */
@@ -554,7 +620,8 @@ static void run_sample(ft_run *R, const void *m, void *d, int64_t s) {
         const int r = R->laws[i].r;
         for (int j = 0; j < r; j++) {
             double v = R->chain ? chain_read(R->chain, R->sensordata, i, j, r) : R->sensordata[R->sensor_adr[i * r + j]];
-            if (j == 0) v -= R->refs[i];
+            if (R->ref_table) v -= R->ref_table[(row * n + i) * (r + 1) + j];
+            else if (j == 0) v -= R->refs[i];
             z[i * FT_RMAX + j] = v;
             if (!(fabs(v) <= zmax)) { if (v != v) nan = 1; else zmax = fabs(v); }
         }
@@ -627,14 +694,25 @@ static void run_sample(ft_run *R, const void *m, void *d, int64_t s) {
         R->rec[7][at] = R->gain[s * n + i];
     }
     if (R->chain) {
-        double phi[FT_MAXLOOPS], gamma[FT_MAXLOOPS], ua[FT_MAXLOOPS]; /* the actuator's output, as sim.py */
+        double phi[FT_MAXLOOPS], gamma[FT_MAXLOOPS], ua[FT_MAXLOOPS] = {0.0}; /* the actuator's output, as sim.py */
         for (int i = 0; i < n; i++) ua[i] = (R->stage_on && R->stage_on[i]) ? R->rec_ua[i][row] : R->u_held[i];
+        if (R->chain->clamp_on)
+            for (int i = 0; i < n; i++)
+                if (R->chain->clamp_on[i]) {
+                    ua[i] = chain_applied(R->chain, i, ua[i], R->gain[s * n + i]);
+                    R->rec_ua[i][row] = ua[i];
+                }
         chain_truth(R->chain, m, d, n, ua, R->gain + s * n, R->inj + s * n, phi, gamma);
         for (int i = 0; i < n; i++) {
             R->rec[6][i * S + row] = phi[i];
             R->rec[7][i * S + row] = gamma[i];
         }
     }
+    if (R->ref_table) /* the error chain's phi: z_r' = q^(r) - ref^(r) */
+        for (int i = 0; i < n; i++) {
+            const int r = R->laws[i].r;
+            R->rec[6][i * S + row] = R->rec[6][i * S + row] - R->ref_table[(row * n + i) * (r + 1) + r];
+        }
     for (int b = 0; b < R->nbody; b++) {
         for (int c = 0; c < 3; c++) R->body_pos[(row * R->nbody + b) * 3 + c] = R->xpos[R->body_ids[b] * 3 + c];
         for (int c = 0; c < 4; c++) R->body_quat[(row * R->nbody + b) * 4 + c] = R->xquat[R->body_ids[b] * 4 + c];

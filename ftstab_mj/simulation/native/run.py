@@ -51,7 +51,7 @@ class FtRun(ctypes.Structure):
         ("bad_value", _d), ("bad_time", _d), ("busy", _i32),
         ("stages", _p), ("stage_on", _p), ("stage_adr", _p), ("k0", _i64), ("u_steps", _p),
         ("rec_zm", _p * MAXLOOPS), ("rec_zh", _p * MAXLOOPS), ("rec_ua", _p * MAXLOOPS),
-        ("chain", _p),
+        ("chain", _p), ("ref_table", _p),
     ]
 
 
@@ -66,6 +66,9 @@ class FtChain(ctypes.Structure):
         ("ctrl", _p),
         ("s", _p), ("s_qpos", _p), ("s_qvel", _p), ("s_act", _p), ("s_qfrc_applied", _p), ("s_ctrl", _p),
         ("s_qacc_smooth", _p), ("eps", _d), ("work", _p),
+        ("clamp_on", _p), ("ctrl_lo", _p), ("ctrl_hi", _p), ("force_lo", _p), ("force_hi", _p), ("gainprm", _p),
+        ("full", _i32), ("fwd_constraint", _p), ("qacc_warmstart", _p), ("s_qacc_warmstart", _p), ("warm", _p),
+        ("s_qacc", _p), ("tau_step", _d),
     ]
 
 
@@ -158,6 +161,21 @@ def chain_config(plant, m, d) -> tuple:
     from ftstab_mj.plants.chain import EPS
 
     C.eps = EPS
+    if getattr(plant, "constrained", False):  # contacts, limits: the constraint solver (ChainPlant._full_chain)
+        from ftstab_mj.plants.chain import TAU_STEP
+
+        keep["warm"] = np.zeros(m.nv)
+        C.full, C.fwd_constraint, C.tau_step = 1, mujoco_function("mj_fwdConstraint"), TAU_STEP
+        C.qacc_warmstart, C.s_qacc_warmstart, C.s_qacc = d.qacc_warmstart.ctypes.data, s.qacc_warmstart.ctypes.data, s.qacc.ctypes.data
+        C.warm = keep["warm"].ctypes.data
+    clamp = c.get("clamp")
+    if clamp is not None and np.any(clamp["on"]):  # the actuators' ctrlrange/forcerange (ChainPlant.applied)
+        keep["clamp_on"] = np.ascontiguousarray(clamp["on"], dtype=np.int32)
+        keep["ctrl_lo"], keep["ctrl_hi"] = (np.ascontiguousarray(a, dtype=float) for a in clamp["ctrl"])
+        keep["force_lo"], keep["force_hi"] = (np.ascontiguousarray(a, dtype=float) for a in clamp["force"])
+        keep["gainprm"] = np.ascontiguousarray(clamp["gainprm"], dtype=float)
+        for name in ("clamp_on", "ctrl_lo", "ctrl_hi", "force_lo", "force_hi", "gainprm"):
+            setattr(C, name, keep[name].ctypes.data)
     return C, keep
 
 
@@ -278,6 +296,24 @@ class NativeRun:
             tables.append(table)
             self._keep["stages"][i].noise = table.ctypes.data
         self._keep["noise_tables"] = tables
+
+    def reference_batch(self, table) -> None:
+        """Before a batch: ref^(j)(t_k) (samples, n, r + 1) of tracked references (None: set points, refs)."""
+        if table is None:
+            self.run.ref_table = None
+            return
+        require_buffer("ref_table", table, table.shape)
+        self._ref_table = table  # kept alive for the batch
+        self.run.ref_table = table.ctypes.data
+
+    def record_applied(self, recs) -> None:
+        """Before a batch: where each loop that records u_applied (stages, or an actuator that clamps)
+        writes it (recs: the run loop's per-loop record dicts)."""
+        for i, rec in enumerate(recs):
+            a = rec.get("u_applied")
+            if a is not None:
+                require_buffer(f"loop {i} u_applied", a, (len(a),))
+            self.run.rec_ua[i] = None if a is None else a.ctypes.data
 
     def run_batch(self, m, d, t, inj, gain, force, ctrl_steps, rec_t, rec_z, rec: list, body_pos, body_quat) -> None:
         """Step len(t) periods with mj_step(nstep) (shapes: t (k,); inj, gain, force, ctrl_steps (k N, n);
