@@ -56,7 +56,8 @@ class Param:
     """One scenario parameter of a law (a key of ``[loops.<name>.controller]``).
 
     type: the TOML value's Python type (float, str, tuple[float, ...], float | str);
-    doc: what it is; units: its units ("" if dimensionless); check: value -> None when allowed,
+    doc: what it is; units: its units, "dimensionless" for a pure number (an exponent, a ratio), ""
+    only for a str parameter (a word from a list; tests/test_law_params.py); check: value -> None when allowed,
     else the text of what is allowed (the loader quotes it); default: REQUIRED or a value;
     plant_bound: "phibar" or "gamma_m" when the word "computed" stands for the plant's bound.
     Two laws may share a parameter only with the same declaration (one key, one meaning).

@@ -41,12 +41,16 @@ def bound(check):
 
 # Shared with plestan_adaptive (one key, one meaning: the dead zone of an adaptation).
 EPS = Param("eps", float, "adaptation dead zone: adaptive, the V1 level below which phi_hat decays; "
-            "plestan_adaptive, the |s| level below which K decreases", check=positive)
+            "plestan_adaptive, the |s| level below which K decreases", "units of V1 (adaptive), of s (plestan_adaptive)",
+            positive)
 
 # Hong's controller, the base of the three laws (LoopInfo.hong).
 HONG_PARAMS = (
-    Param("k", float, "homogeneity degree, -1/r < k <= 0 (full form)"),
-    Param("gains", tuple[float, ...], "Hong's gains l_1..l_r > 0 (Hurwitz nested polynomial)"),
+    Param("k", float, "homogeneity degree, -1/r < k <= 0 (full form)", "dimensionless"),
+    # l_i: at k = 0 the roots' scale of the nested polynomial, 1/s; at k < 0 the law is not dimensionally
+    # homogeneous and l_i carries powers of the z_1 unit and of s set by k, i and the form (full form: l_1 in m^-k/s).
+    Param("gains", tuple[float, ...], "Hong's gains l_1..l_r > 0 (Hurwitz nested polynomial)",
+          "1/s at k = 0; at k < 0, m^a s^b with a, b set by k, i and the form (rad for m on a hinge)"),
     Param("form", str, "Hong's controller form", check=one_of("full", "simplified"), default="full"),
 )
 
@@ -173,10 +177,11 @@ class AdaptiveLaw(_HongLaw):
     name = "adaptive"
     summary = "Hong's controller with adapted gains, u = (kappa + delta |u0|) u0 + phi_hat sign(u0) (Theorem 3)"
     params = (
-        Param("kappa", float, "gamma_hat = kappa + delta |u0|", check=positive),
-        Param("delta", float, "gamma_hat = kappa + delta |u0|", check=positive),
+        Param("kappa", float, "gamma_hat = kappa + delta |u0|", "units of u per chain unit of u0 (m/s^r or rad/s^r)",
+              positive),
+        Param("delta", float, "gamma_hat = kappa + delta |u0|", "units of kappa per chain unit of u0", positive),
         Param("rate", float, "growth rate of phi_hat (the paper's 'k')", "chain units per s", positive),
-        Param("eta", float, "decay exponent of phi_hat", check=open_unit_interval),
+        Param("eta", float, "decay exponent of phi_hat", "dimensionless", open_unit_interval),
         EPS,
     )
     native_code = 2

@@ -74,7 +74,7 @@ class Terminal(Law):
                "(Feng, Yu, Man 2002, Automatica 38:2159)")
     params = (
         Param("beta", float, "terminal surface coefficient: s = z_1 + sig(z_2, p/q) / beta", "(m/s)^(p/q) per m", positive),
-        Param("ratio", float, "terminal exponent p/q of the surface, 1 < p/q < 2", check=_ratio),
+        Param("ratio", float, "terminal exponent p/q of the surface, 1 < p/q < 2", "dimensionless", _ratio),
         SWITCHING,
     )
 
