@@ -109,19 +109,23 @@ def _replay_piped(feed, *args, cap=None):
 
 def test_replay_from_a_pipe_is_replay_of_the_file(tmp_path):
     """`ftstab replay -` (standard input) gives what replay of the file gives: the same JSON metrics and,
-    for a log cut short, the same warning; the printed report differs only by the name of the log."""
+    for a log cut short, the same warning, for a log with a flipped byte the same damage line; the
+    printed report differs only by the name of the log."""
     assert run_cli("run", "cart_r2_robust", "--set", "sim.duration=2.5", "--out", tmp_path).returncode == 0
     log = tmp_path / "cart_r2_robust.mcap"
-    cut = tmp_path / "cut.mcap"
-    cut.write_bytes(log.read_bytes()[:log.stat().st_size * 2 // 3])  # a run killed mid-way: 2 of 3 chunks whole
-    for path in (log, cut):
+    cut, flipped = tmp_path / "cut.mcap", tmp_path / "flipped.mcap"
+    whole = log.read_bytes()
+    cut.write_bytes(whole[:len(whole) * 2 // 3])  # a run killed mid-way: 2 of 3 chunks whole
+    middle = len(whole) // 2  # inside the second chunk's compressed samples
+    flipped.write_bytes(whole[:middle] + bytes([whole[middle] ^ 0x10]) + whole[middle + 1:])
+    for path, exit_code in ((log, 0), (cut, 0), (flipped, 2)):
         data = path.read_bytes()
         for args in (("--json",), ()):
             code, out, err, _ = _replay_piped(lambda: [data], *args)
             ref = run_cli("replay", path, *args)
-            assert code == ref.returncode == 0, err
+            assert code == ref.returncode == exit_code, err
             assert out == ref.stdout.replace(str(path), "-") and err == ref.stderr.replace(str(path), "-"), path
-    assert "truncated log" in run_cli("replay", cut).stderr
+    assert "truncated log" in run_cli("replay", cut).stderr and "damaged log" in run_cli("replay", flipped).stderr
 
 
 def test_garbage_from_a_pipe_is_refused_at_once_in_bounded_memory():

@@ -58,8 +58,9 @@ def handle(args) -> int:
                              f"(open {out} with it yourself)") from None
         print(f"opened {out} in the Rerun viewer")
         return 0
-    print(f"serving {out}: open http://localhost:{args.web_port} (from your desk: ssh -L {args.web_port}:localhost:"
-          f"{args.web_port} -L 9876:localhost:9876 HOST); Ctrl-C stops it", flush=True)
+    print(f"serving {out} on port {args.web_port}: open the link Rerun prints below (from your desk: ssh -L "
+          f"{args.web_port}:localhost:{args.web_port} -L 9876:localhost:9876 HOST, then the link); Ctrl-C stops it",
+          flush=True)
     sys.stdout.flush()
     try:
         os.execv(exe, [exe, "--serve-web", "--web-viewer-port", str(args.web_port), out])

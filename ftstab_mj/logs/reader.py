@@ -111,6 +111,7 @@ class _Damage(Exception):
 
     def __init__(self, offset: int, what: str, cut: bool = False):
         self.offset, self.what, self.cut = offset, what, cut  # cut: a top-level record runs past the file's end
+        self.in_chunk = False  # offset in a chunk's decompressed records, not in the file
 
 
 def _u(fmt: str, buf, pos: int, end: int, what: str):
@@ -234,7 +235,11 @@ class _Parser:
         elif zlib.crc32(raw) != crc:
             raise _Damage(b0, f"chunk {k} fails its CRC check")
         self.expanded += size
-        return self._inner(raw, 0, len(raw), k)
+        try:
+            return self._inner(raw, 0, len(raw), k)
+        except _Damage as d:
+            d.in_chunk = True
+            raise
 
     def _commit(self, staged):
         """A chunk found intact: its schemas and channels are known from now on; its messages
@@ -268,63 +273,76 @@ class _Parser:
             records = self._file_records()
         else:
             records = stream.records(self)
-        in_summary = False
         try:
             for op, buf, b0, b1, start in records:
-                allowed = _SUMMARY if in_summary else _DATA_SECTION
-                if op not in allowed:
-                    raise _Damage(start, f"unexpected {_OP.get(op, f'0x{op:02x}')} record "
-                                         f"{'in the summary' if in_summary else 'in the data section'}")
-                whole = buf[b0 - 9:b1]  # the record with its opcode and length
-                if not in_summary and op != 0x0F:  # the data section's CRC covers what precedes DataEnd
-                    self.crc = zlib.crc32(whole, self.crc)
-                elif in_summary and op != 0x02:  # the summary's CRC: its records, then the footer's head
-                    self.summary = (self.summary[0], zlib.crc32(whole, self.summary[1]))
-                if op == 0x06:
-                    messages = self._commit(self._chunk(buf, b0, b1))
-                    self.chunks += 1
-                    self.good = start + (b1 - b0) + 9
-                    if self.release is not None:
-                        self.release(self.good)
+                try:
+                    messages = self._record(op, buf, b0, b1, start)
+                except _Damage as d:  # a stream's record is a buffer of its own: the offset in the file
+                    if stream is not None and not d.in_chunk:
+                        d.offset += start - (b0 - 9)
+                    raise
+                if messages is not None:
                     yield messages
-                    continue
-                elif op == 0x0C:
-                    name, p = _string(buf, b0, b1, "metadata name")
-                    (n,), p = _u("<I", buf, p, b1, "metadata map length")
-                    q, entries = p, {}
-                    while q < p + n:
-                        key, q = _string(buf, q, b1, "metadata key")
-                        value, q = _string(buf, q, b1, "metadata value")
-                        entries[key] = value
-                    if name == "versions":
-                        self.versions = entries
-                elif op == 0x0F:
-                    (crc,), _ = _u("<I", buf, b0, b1, "data end")
-                    self.data_end = (start, crc)
-                    self.summary = (start + 9 + (b1 - b0), 0)
-                    in_summary = True
-                elif op == 0x0B:
-                    (count, _s, _c, _a, _m, chunks, _t0, _t1), p = _u("<QHIIIIQQ", buf, b0, b1, "statistics")
-                    (n,), p = _u("<I", buf, p, b1, "statistics channel counts")
-                    if n != b1 - p or n % 10:
-                        raise _Damage(p, "the statistics' channel counts do not fill their record")
-                    per = {cid: c for cid, c in struct.iter_unpack("<HQ", bytes(buf[p:b1]))}
-                    self.stats = (count, chunks, per)
-                elif op == 0x02:
-                    (s_start, _off, s_crc), _ = _u("<QQI", buf, b0, b1, "footer")
-                    self.footer = (s_start, s_crc, start)
-                    self.footer_head = bytes(buf[b0 - 9:b0 + 16])
-                    self.complete = True
+                if self.complete:
                     if stream is not None:
                         stream.finish(self)
                     self.good = self.total
                     return
-                if not in_summary:
-                    self.good = start + (b1 - b0) + 9
         except _Damage as d:
             if d.cut and not (ended if stream is None else stream.ended):  # a run killed mid-way: keep what was flushed
                 return
             raise
+
+    def _record(self, op: int, buf, b0: int, b1: int, start: int):
+        """Read one top-level record (its body buf[b0:b1], starting at byte ``start`` of the file): the
+        messages of a chunk, else None; the footer sets :attr:`complete`."""
+        in_summary = self.data_end is not None
+        allowed = _SUMMARY if in_summary else _DATA_SECTION
+        if op not in allowed:
+            raise _Damage(b0 - 9, f"unexpected {_OP.get(op, f'0x{op:02x}')} record "
+                                  f"{'in the summary' if in_summary else 'in the data section'}")
+        whole = buf[b0 - 9:b1]  # the record with its opcode and length
+        if not in_summary and op != 0x0F:  # the data section's CRC covers what precedes DataEnd
+            self.crc = zlib.crc32(whole, self.crc)
+        elif in_summary and op != 0x02:  # the summary's CRC: its records, then the footer's head
+            self.summary = (self.summary[0], zlib.crc32(whole, self.summary[1]))
+        end = start + 9 + (b1 - b0)  # where the record ends in the file
+        if op == 0x06:
+            messages = self._commit(self._chunk(buf, b0, b1))
+            self.chunks += 1
+            self.good = end
+            if self.release is not None:
+                self.release(end)
+            return messages
+        if op == 0x0C:
+            name, p = _string(buf, b0, b1, "metadata name")
+            (n,), p = _u("<I", buf, p, b1, "metadata map length")
+            q, entries = p, {}
+            while q < p + n:
+                key, q = _string(buf, q, b1, "metadata key")
+                value, q = _string(buf, q, b1, "metadata value")
+                entries[key] = value
+            if name == "versions":
+                self.versions = entries
+        elif op == 0x0F:
+            (crc,), _ = _u("<I", buf, b0, b1, "data end")
+            self.data_end = (start, crc)
+            self.summary = (end, 0)
+        elif op == 0x0B:
+            (count, _s, _c, _a, _m, chunks, _t0, _t1), p = _u("<QHIIIIQQ", buf, b0, b1, "statistics")
+            (n,), p = _u("<I", buf, p, b1, "statistics channel counts")
+            if n != b1 - p or n % 10:
+                raise _Damage(p, "the statistics' channel counts do not fill their record")
+            per = {cid: c for cid, c in struct.iter_unpack("<HQ", bytes(buf[p:b1]))}
+            self.stats = (count, chunks, per)
+        elif op == 0x02:
+            (s_start, _off, s_crc), _ = _u("<QQI", buf, b0, b1, "footer")
+            self.footer = (s_start, s_crc, start)
+            self.footer_head = bytes(buf[b0 - 9:b0 + 16])
+            self.complete = True
+        if not in_summary:
+            self.good = end
+        return None
 
     def check_integrity(self) -> list[str]:
         """For a complete file: the stored CRCs and counts. Raises _Damage when samples may be
