@@ -4,8 +4,6 @@
 from __future__ import annotations
 
 import os
-import shutil
-import subprocess
 import sys
 from pathlib import Path
 
@@ -35,6 +33,9 @@ def add_parser(sub) -> None:
 
 
 def handle(args) -> int:
+    import shutil
+    import subprocess
+
     from ftstab_mj.logs.live import has_display, rerun_binary
 
     out = args.rrd or (None if args.log == "-" else str(Path(args.log).with_suffix(".rrd")))
