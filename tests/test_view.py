@@ -42,3 +42,9 @@ def test_view_of_a_file_that_is_not_a_log_is_one_line_and_writes_nothing(tmp_pat
     res = run_cli("view", bad, "--open", "none")
     assert res.returncode == 2 and len(res.stderr.strip().splitlines()) == 1 and "Traceback" not in res.stderr
     assert str(bad) in res.stderr and not (tmp_path / "notes.rrd").exists()
+
+
+def test_view_of_standard_input_needs_a_name_for_its_recording():
+    res = run_cli("view", "-", "--open", "none")
+    assert res.returncode == 2 and res.stderr.strip() == (
+        "error: view -: expected --rrd OUT.rrd for a log read from standard input, found none")
