@@ -55,7 +55,7 @@ def main() -> int:
     env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
     entries = {"module": [sys.executable, "-m", "ftstab_mj"], "script": [str(Path(sys.executable).parent / "ftstab")]}
     entries = {k: v for k, v in entries.items() if args.entry in (k, "both")}
-    run = ["run", args.scenario, "--set", f"sim.duration={args.duration}"]
+    run = ["run", args.scenario, "--set", f"sim.duration={args.duration}", "--rrd"]  # both logs: do they agree?
 
     def start(out, entry=next(iter(entries))):
         return subprocess.Popen(entries[entry] + run + ["--out", str(out)], env=env, stdout=subprocess.DEVNULL,

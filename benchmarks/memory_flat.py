@@ -37,7 +37,7 @@ def peak_mb(argv: list) -> float:
 
 
 def run_argv(scenario: str, duration: float, out: Path) -> list:
-    return ["run", scenario, "--out", str(out), "--force", "--set", f"sim.duration={duration}",
+    return ["run", scenario, "--out", str(out), "--force", "--rrd", "--set", f"sim.duration={duration}",
             "--set", "sim.period=0.001", "--set", "sim.physics_step=0.001"]
 
 

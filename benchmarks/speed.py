@@ -10,14 +10,12 @@ a shared, loaded machine (load average above the CPU count) wall time mostly mea
 processes, and the CPU-time ratio is the testbed's own cost. "met" is judged on the CPU-time
 figures; for the ideal chain (split over the CPUs) that is trajectory-steps per CPU-second, i.e.
 what one core sustains (the wall-clock rate of an idle machine is that times the threads used).
+A whole run, in process with and without logs and as a whole `ftstab run` process against a plain
+mujoco process: benchmarks/run_speed.py.
 
   callback     Simulation.advance with the paper's controller in the (native) control callback,
                one control sample per 1 ms physics step, batches of 1000 samples as simulate()
                uses, vs mj_step(m, d, nstep) of the same compiled model with no callback.
-  full run     a recorded run (scenario.run.record) with an MCAP and a Rerun sink writing every sample (100 s, 100,000
-               samples), in this process (imports done: no interpreter start-up) vs bare stepping.
-  process      `python -m ftstab_mj run scenarios/cart_r2_robust.toml --set sim.duration=100` (both
-               logs, metrics) vs `python -c "import mujoco; <load the same MJCF>; mj_step x 100,000"`.
   ideal chain  simulate_chain(native=True), robust law, r = 2, 1,000 initial states x 1,000
                periods: trajectory-steps per second (the NumPy loop for reference).
 """
@@ -28,9 +26,7 @@ import argparse
 import os
 import resource
 import statistics
-import subprocess
 import sys
-import tempfile
 import time
 from pathlib import Path
 
@@ -46,7 +42,7 @@ from ftstab_mj.plants.disturbances import Signal  # noqa: E402
 from ftstab_mj.simulation.ideal_chain import simulate_chain  # noqa: E402
 from ftstab_mj.plants import make_plant  # noqa: E402
 from ftstab_mj.scenario import LoopSpec  # noqa: E402
-from ftstab_mj.simulation.run_loop import Run, Simulation  # noqa: E402
+from ftstab_mj.simulation.run_loop import Simulation  # noqa: E402
 
 STEP = 1e-3  # s, physics step and control period
 BATCH = 1000  # samples per Simulation.advance, simulate()'s default batch
@@ -96,32 +92,6 @@ def with_callback(plant, kind: str, r: int, steps: int, use_native) -> float:
     return timed(go)
 
 
-def full_run(plant, kind: str, r: int, steps: int) -> float:
-    from ftstab_mj.logs import McapSink, RerunSink
-    from ftstab_mj.scenario.run import record
-
-    with tempfile.TemporaryDirectory() as tmp:
-        sinks = (McapSink(Path(tmp) / "run.mcap"), RerunSink(Path(tmp) / "run.rrd"))
-        return timed(lambda: record(Run(Simulation(plant, loops(kind, r), STEP, STEP), steps * STEP), sinks,
-                                    metrics=True))
-
-
-def process_pair(steps: int):
-    """Clocks of (ftstab run process, plain mujoco process), the same MJCF and number of steps."""
-    xml = make_plant("cart").compile(STEP)[2]
-    with tempfile.TemporaryDirectory() as tmp:
-        model = Path(tmp) / "cart.xml"
-        model.write_text(xml)
-        plain = [sys.executable, "-c", "import mujoco; m = mujoco.MjModel.from_xml_path(%r); "
-                 "d = mujoco.MjData(m); mujoco.mj_step(m, d, nstep=%d)" % (str(model), steps)]
-        run = [sys.executable, "-m", "ftstab_mj", "run", str(ROOT / "scenarios" / "cart_r2_robust.toml"),
-               "--set", f"sim.duration={steps * STEP:g}", "--out", tmp]
-        env = dict(os.environ, PYTHONPATH=str(ROOT))
-        t_run = Clock(lambda: subprocess.run(run, check=True, capture_output=True, env=env, cwd=tmp), children=True)
-        t_plain = Clock(lambda: subprocess.run(plain, check=True, capture_output=True, env=env, cwd=tmp), children=True)
-    return t_run, t_plain
-
-
 def chain_rate(use_native, n_traj=1000, n_steps=1000) -> tuple[float, float]:
     """Trajectory-steps per wall second and per CPU second of the batched ideal chain."""
     z0 = np.random.default_rng(0).uniform(-2.0, 2.0, (n_traj, 2))
@@ -160,13 +130,6 @@ def main(argv=None) -> int:
     plant = make_plant("cart")
     py = [with_callback(plant, "robust", 2, 10 * BATCH, False) / bare(plant, 10 * BATCH) for _ in range(min(R, 3))]
     rows.append(("  (Python callback, robust r=2, for reference)", "x bare", py, "", None))
-    full = [full_run(plant, "robust", 2, steps) / bare(plant, steps) for _ in range(R)]
-    rows.append(("full run, MCAP + Rerun, every sample, in process", "x bare", full, "<= 2.5", lambda v: v <= 2.5))
-    pairs = [process_pair(steps) for _ in range(R)]
-    rows.append(("whole `ftstab run` process vs plain mujoco process", "x plain", [a / b for a, b in pairs], "<= 3",
-                 lambda v: v <= 3.0))
-    rows.append(("  `ftstab run` process", "s", [(a.wall, a.cpu) for a, _ in pairs], "", None))
-    rows.append(("  plain `import mujoco; mj_step` process", "s", [(b.wall, b.cpu) for _, b in pairs], "", None))
     from ftstab_mj.simulation.native import chain_threads
 
     rates = [tuple(v / 1e6 for v in chain_rate(True)) for _ in range(R)]

@@ -15,8 +15,7 @@ def test_speed_benchmark_prints_every_ratio():
     out = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "speed.py"), "--repeat", "1", "--steps", "2000"],
                          capture_output=True, text=True, timeout=300, cwd=ROOT)
     assert out.returncode == 0, out.stderr
-    for row in ("callback robust r=2", "callback adaptive r=3", "full run, MCAP + Rerun",
-                "whole `ftstab run` process", "ideal chain r=2, 1000 initial states"):
+    for row in ("callback robust r=2", "callback adaptive r=3", "ideal chain r=2, 1000 initial states"):
         assert row in out.stdout, out.stdout
 
 
@@ -38,12 +37,14 @@ def test_live_costs_benchmark_prints_every_case():
     int(out.stdout.split("received per run: [")[1].split("]")[0])  # how many depends on when the client got in
 
 
-def test_run_speed_benchmark_prints_both_ratios():
+def test_run_speed_benchmark_prints_the_process_and_in_process_ratios():
     out = subprocess.run([sys.executable, "-m", "benchmarks.run_speed", "--repeat", "1", "--duration", "0.05",
                           "--scenarios", "cart_r2_robust", "--no-breakdown"],
                          capture_output=True, text=True, timeout=300, cwd=ROOT)
     assert out.returncode == 0, out.stderr
-    for row in ("process: `ftstab run` / plain mujoco", "in process: run, MCAP + Rerun / bare", "load average"):
+    for row in ("process: `ftstab run` / plain mujoco", "process: `ftstab run --rrd` / plain mujoco",
+                "in process: run, MCAP / bare", "in process: run, MCAP + Rerun / bare", "in process: run, no logs / bare",
+                "load average"):
         assert row in out.stdout, out.stdout
 
 

@@ -102,7 +102,7 @@ def test_unusable_out_is_bad_input_and_leaves_no_log(tmp_path):
     not opened while the .rrd is unusable)."""
     blocked = tmp_path / "a"
     (blocked / "cart_r2_robust.rrd").mkdir(parents=True)
-    res = run_cli("run", "cart_r2_robust", "--out", blocked, "--set", "sim.duration=0.1")
+    res = run_cli("run", "cart_r2_robust", "--out", blocked, "--set", "sim.duration=0.1", "--rrd")
     assert res.returncode == 2 and len(res.stderr.strip().splitlines()) == 1 and "Traceback" not in res.stderr
     assert not (blocked / "cart_r2_robust.mcap").exists()
     res = run_cli("run", "cart_r2_robust", "--out", "/proc/no/such/dir", "--set", "sim.duration=0.1")

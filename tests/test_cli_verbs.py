@@ -10,7 +10,7 @@ import pytest
 import ftstab_mj.cli as cli
 from conftest import ROOT
 
-VERBS = ["certify", "design", "replay", "check", "report", "run", "list", "sweep", "montecarlo", "compare"]
+VERBS = ["certify", "design", "replay", "check", "report", "view", "run", "list", "sweep", "montecarlo", "compare"]
 
 
 def test_every_verb_is_a_module_in_its_help_order():
@@ -24,7 +24,7 @@ def test_every_verb_is_a_module_in_its_help_order():
 
 def _required(verb):
     return {"certify": ["--r", "2", "--k", "-0.2", "--gains", "1,2"], "design": ["--r", "2", "--k", "-0.2"],
-            "replay": ["x.mcap"], "check": ["x.mcap", "--expect", "e.toml"], "report": ["x.mcap", "--out", "f.png"],
+            "replay": ["x.mcap"], "check": ["x.mcap", "--expect", "e.toml"], "report": ["x.mcap", "--out", "f.png"], "view": ["x.mcap"],
             "run": ["s"], "list": [], "sweep": ["s"], "montecarlo": ["s", "--states", "1"], "compare": ["c"]}[verb]
 
 
@@ -34,7 +34,8 @@ def test_a_new_module_is_a_new_verb(tmp_path, monkeypatch, capsys):
         'def add_parser(sub):\n    sub.add_parser("hello", help="say hello").set_defaults(func=handle)\n\n\n'
         'def handle(args):\n    print("hello")\n    return 0\n')
     monkeypatch.setattr(cli, "__path__", [*cli.__path__, str(tmp_path)])
-    assert [m.VERB for m in cli.verbs()] == VERBS[:6] + ["hello"] + VERBS[6:]
+    after_run = VERBS.index("run") + 1  # ORDER 65: between run (60) and list (70)
+    assert [m.VERB for m in cli.verbs()] == VERBS[:after_run] + ["hello"] + VERBS[after_run:]
     assert cli.main(["hello"]) == 0 and capsys.readouterr().out == "hello\n"
     with pytest.raises(SystemExit):
         cli.main(["--help"])

@@ -113,7 +113,7 @@ def test_a_symlink_planted_at_the_log_path_is_never_followed(tmp_path):
     target = tmp_path / "precious.txt"
     target.write_text("not yours\n")
     (out / "cart_r2_robust.mcap").symlink_to(target)
-    res = run_cli("run", "cart_r2_robust", "--out", out, "--set", "sim.duration=0.2")
+    res = run_cli("run", "cart_r2_robust", "--out", out, "--set", "sim.duration=0.2", "--rrd")
     assert res.returncode == 2 and res.stderr.count("\n") == 1 and "Traceback" not in res.stderr
     assert (f"error: {out / 'cart_r2_robust.mcap'}: expected no file or an ftstab log there, found a symbolic link "
             f"(to {target}); not overwritten (--force replaces it)") == res.stderr.strip()
@@ -127,13 +127,14 @@ def test_a_symlink_planted_at_the_log_path_is_never_followed(tmp_path):
 
 def test_a_file_that_is_not_a_log_is_not_overwritten_without_force_and_our_logs_are(tmp_path):
     (tmp_path / "cart_r2_robust.rrd").write_text("my notes\n")
-    res = run_cli("run", "cart_r2_robust", "--out", tmp_path, "--set", "sim.duration=0.2")
+    res = run_cli("run", "cart_r2_robust", "--out", tmp_path, "--set", "sim.duration=0.2", "--rrd")
     assert res.returncode == 2 and "found a file that is not an ftstab log (9 bytes)" in res.stderr
     assert (tmp_path / "cart_r2_robust.rrd").read_text() == "my notes\n"
     assert not (tmp_path / "cart_r2_robust.mcap").exists()
-    assert run_cli("run", "cart_r2_robust", "--out", tmp_path, "--set", "sim.duration=0.2", "--force").returncode == 0
+    assert run_cli("run", "cart_r2_robust", "--out", tmp_path, "--set", "sim.duration=0.2", "--force",
+                   "--rrd").returncode == 0
     # our own logs of an earlier run are replaced without --force (a run again in the same DIR)
-    again = run_cli("run", "cart_r2_robust", "--out", tmp_path, "--set", "sim.duration=0.3")
+    again = run_cli("run", "cart_r2_robust", "--out", tmp_path, "--set", "sim.duration=0.3", "--rrd")
     assert again.returncode == 0, again.stderr
     assert read_log(tmp_path / "cart_r2_robust.mcap").n_samples == 300
     assert sorted(p.name for p in tmp_path.iterdir()) == ["cart_r2_robust.mcap", "cart_r2_robust.rrd"]  # no temp left
@@ -263,7 +264,7 @@ def test_an_mcap_batch_that_fills_the_disk_is_cut_back_and_the_log_records_faile
 
     from ftstab_mj.cli import main
 
-    argv = ["run", "cart_r2_robust", "--set", "sim.duration=5"]  # 5 batches of 1000 samples
+    argv = ["run", "cart_r2_robust", "--set", "sim.duration=5", "--rrd"]  # 5 batches of 1000 samples
     ref = FullDisk(monkeypatch, 1 << 40)
     assert main([*argv, "--out", str(tmp_path / "ref")]) == 0
     capsys.readouterr()

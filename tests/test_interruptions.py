@@ -192,7 +192,7 @@ def test_a_signal_at_any_moment_leaves_logs_whose_metrics_are_the_replayed_ones(
     from ftstab_mj.metrics.run_metrics import compute_metrics
 
     moments = Moments(monkeypatch)
-    argv = ["run", scenario, "--out", str(tmp_path / "o"), "--set", "sim.duration=1.5", "--json"]
+    argv = ["run", scenario, "--out", str(tmp_path / "o"), "--set", "sim.duration=1.5", "--json", "--rrd"]
     warm = []
     for _ in range(2):  # the second, warm, is what the tries take
         moments.start()
@@ -218,7 +218,8 @@ def test_a_signal_at_any_moment_leaves_logs_whose_metrics_are_the_replayed_ones(
         index = int(np.searchsorted(times, at, side="right")) - 1  # the last moment before it
         delay = at - times[index]
         out = tmp_path / f"try{k}"
-        code = main_with_signal_at(moments, index, delay, sig, ["run", scenario, "--out", str(out), "--set", "sim.duration=1.5"])
+        code = main_with_signal_at(moments, index, delay, sig, ["run", scenario, "--out", str(out), "--set", "sim.duration=1.5",
+                                                                  "--rrd"])
         stdout, stderr = capsys.readouterr()
         where = (f"try {k}: {signal.Signals(sig).name} {delay:.3f} s after {names[index]} (moment {index}, "
                  f"{at:.3f} s of the warm run's {clock[-1]:.3f}): exit {code}: {stderr!r}")

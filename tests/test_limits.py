@@ -79,15 +79,77 @@ def test_replay_refuses_dev_zero_at_its_first_bytes_and_streams_a_log_from_a_pip
     assert proc.returncode == 0 and b"recorded metrics: identical" in proc.stdout, proc.stderr
 
 
-def test_a_piped_log_beyond_its_limit_is_refused(monkeypatch, tmp_path):
-    import io
+def _replay_piped(feed, *args, cap=None):
+    """`ftstab replay - ARGS` reading feed() (an iterable of bytes, maybe endless) from a pipe, its address
+    space capped at ``cap`` bytes (RLIMIT_AS); (exit code, stdout, stderr, wall s)."""
+    import resource
+    import threading
+    import time
 
-    from ftstab_mj.config.errors import LogError
-    from ftstab_mj.logs import reader
+    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    limit = None if cap is None else (lambda: resource.setrlimit(resource.RLIMIT_AS, (cap, cap)))
+    t0 = time.monotonic()
+    proc = subprocess.Popen([os.sys.executable, "-m", "ftstab_mj", "replay", "-", *args], stdin=subprocess.PIPE,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env, cwd=ROOT, preexec_fn=limit)
 
-    monkeypatch.setattr(reader, "MAX_STREAMED_LOG_BYTES", 1000)
-    with pytest.raises(LogError, match="at most 1000 bytes"):
-        reader._read_bounded(io.BytesIO(reader.MCAP_MAGIC + bytes(2000)), "pipe")
+    def write():
+        try:
+            for part in feed():
+                proc.stdin.write(part)
+            proc.stdin.close()
+        except (BrokenPipeError, ValueError):  # the reader stopped reading: what the test wants to see
+            pass
+
+    writer = threading.Thread(target=write, daemon=True)
+    writer.start()
+    out, err = proc.stdout.read(), proc.stderr.read()
+    proc.wait(timeout=DEADLINE)
+    return proc.returncode, out.decode(), err.decode(), time.monotonic() - t0
+
+
+def test_replay_from_a_pipe_is_replay_of_the_file(tmp_path):
+    """`ftstab replay -` (standard input) gives what replay of the file gives: the same JSON metrics and,
+    for a log cut short, the same warning, for a log with a flipped byte the same damage line; the
+    printed report differs only by the name of the log."""
+    assert run_cli("run", "cart_r2_robust", "--set", "sim.duration=2.5", "--out", tmp_path).returncode == 0
+    log = tmp_path / "cart_r2_robust.mcap"
+    cut, flipped = tmp_path / "cut.mcap", tmp_path / "flipped.mcap"
+    whole = log.read_bytes()
+    cut.write_bytes(whole[:len(whole) * 2 // 3])  # a run killed mid-way: 2 of 3 chunks whole
+    middle = len(whole) // 2  # inside the second chunk's compressed samples
+    flipped.write_bytes(whole[:middle] + bytes([whole[middle] ^ 0x10]) + whole[middle + 1:])
+    for path, exit_code in ((log, 0), (cut, 0), (flipped, 2)):
+        data = path.read_bytes()
+        for args in (("--json",), ()):
+            code, out, err, _ = _replay_piped(lambda: [data], *args)
+            ref = run_cli("replay", path, *args)
+            assert code == ref.returncode == exit_code, err
+            assert out == ref.stdout.replace(str(path), "-") and err == ref.stderr.replace(str(path), "-"), path
+    assert "truncated log" in run_cli("replay", cut).stderr and "damaged log" in run_cli("replay", flipped).stderr
+
+
+def test_garbage_from_a_pipe_is_refused_at_once_in_bounded_memory():
+    """Endless garbage on standard input (random bytes, with and without MCAP's magic in front, and zeros
+    after it): one line, exit 2, within seconds, in a process whose address space is capped at 1 GiB (the
+    reader once held all a pipe gave: `ftstab replay /dev/urandom` reached 21 GB)."""
+    import random
+
+    from ftstab_mj.logs.reader import MCAP_MAGIC
+
+    def endless(head, byte=None):
+        rng = random.Random(38)
+        return lambda: (x for k in range(10 ** 9) for x in ([head] if k == 0 else []) + [
+            bytes(1 << 20) if byte == 0 else rng.randbytes(1 << 20)])
+
+    for head, byte, says in ((b"", None, "expected an MCAP log"), (MCAP_MAGIC, None, "unknown record opcode"),
+                             (MCAP_MAGIC, 0, "unknown record opcode 0x00")):
+        code, out, err, wall = _replay_piped(endless(head, byte), cap=1 << 30)
+        lines = err.strip().splitlines()
+        assert code == 2 and len(lines) == 1 and lines[0].startswith("error: -: ") and says in lines[0], err
+        assert out == "" and wall < 20, (head, wall)
+    header = MCAP_MAGIC + bytes([0x01]) + (1 << 40).to_bytes(8, "little")  # a header record of 1 TiB
+    code, _, err, _ = _replay_piped(lambda: [header], cap=1 << 30)
+    assert code == 2 and "declares 1099511627776 bytes, more than a log read as it streams accepts" in err, err
 
 
 def test_the_limits_table_is_one_table_that_the_checks_read():
@@ -97,7 +159,7 @@ def test_the_limits_table_is_one_table_that_the_checks_read():
     from ftstab_mj.studies import montecarlo
 
     assert validate.MAX_FILE_BYTES is limits.MAX_FILE_BYTES and validate.MAX_SAMPLES is limits.MAX_SAMPLES
-    assert reader.MAX_CHUNK_BYTES is limits.MAX_CHUNK_BYTES and montecarlo.MAX_STATES is limits.MAX_STATES
+    assert reader.MAX_CHUNK_BYTES is limits.MAX_CHUNK_BYTES and reader.MAX_RECORD_BYTES is limits.MAX_RECORD_BYTES and montecarlo.MAX_STATES is limits.MAX_STATES
     assert plugins.MAX_PLUGIN_BYTES is limits.MAX_PLUGIN_BYTES
     assert limits.markdown().count("\n") == len(limits.TABLE) + 1
 

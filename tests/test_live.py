@@ -136,14 +136,14 @@ def test_live_logs_are_byte_identical_to_the_same_run_without(tmp_path):
     byte to the one of a run without them (the MCAP log has no wall-clock time in it), and an .rrd
     holding the same samples; the Rerun server received them all too."""
     plain, live = tmp_path / "plain", tmp_path / "live"
-    assert run_cli("run", SCENARIO, "--out", plain, "--set", "sim.duration=1").returncode == 0
+    assert run_cli("run", SCENARIO, "--out", plain, "--set", "sim.duration=1", "--rrd").returncode == 0
     port = free_port()
     got = tmp_path / "received.rrd"
     receiver = _receiver(port, got)
     try:
         _wait_listening(port)
         done = run_cli("run", SCENARIO, "--out", live, "--set", "sim.duration=1", "--foxglove", "127.0.0.1:0",
-                       "--live", f"rerun+http://127.0.0.1:{port}/proxy")
+                       "--live", f"rerun+http://127.0.0.1:{port}/proxy", "--rrd")
         assert done.returncode == 0, done.stderr
         assert f"rerun: streaming to rerun+http://127.0.0.1:{port}/proxy" in done.stderr
         _wait_rows(got, "/loop/cart/V1/log10_V1", 1000)
@@ -195,7 +195,8 @@ def _wait_rows(path, entity: str, at_least: int, timeout: float = 60.0) -> None:
 
 def test_live_serve_keeps_the_run_for_a_viewer_that_connects_afterwards(tmp_path):
     """--live serve on free ports starts a `rerun --serve-web` server that outlives the run; a Rerun
-    client that connects once the run is over (`rerun URL --save`) receives every sample."""
+    client that connects once the run is over (`rerun URL --save`) receives every sample. Without
+    --rrd: the viewer gets the run, the directory only the MCAP log."""
     grpc, web = free_port(), free_port()
     done = run_cli("run", SCENARIO, "--out", tmp_path / "o", "--set", "sim.duration=1", "--live", "serve",
                    "--grpc-port", grpc, "--web-port", web)
@@ -218,7 +219,8 @@ def test_live_serve_keeps_the_run_for_a_viewer_that_connects_afterwards(tmp_path
 
         os.kill(pid, signal.SIGTERM)  # the server this test started (through ftstab run)
     client.communicate(timeout=60)  # its stream ends with the server
-    assert rrd_rows(got, "/loop/cart/V1/log10_V1") == rrd_rows(tmp_path / "o" / f"{SCENARIO}.rrd", "/loop/cart/V1/log10_V1")
+    assert rrd_rows(got, "/loop/cart/V1/log10_V1") - 1 == read_log(tmp_path / "o" / f"{SCENARIO}.mcap").n_samples  # + style
+    assert sorted(p.name for p in (tmp_path / "o").iterdir()) == [f"{SCENARIO}.mcap"]
 
 
 def test_realtime_takes_at_least_the_simulated_time_and_gives_the_same_samples(capsys):
@@ -244,7 +246,7 @@ def test_ctrl_c_during_a_live_paced_run_leaves_consistent_logs(tmp_path):
     """Ctrl-C during `ftstab run --realtime --foxglove`: exit 130, both logs closed "interrupted"
     holding the same samples, recorded metrics equal to the replayed ones."""
     proc = start_cli("run", SCENARIO, "--out", tmp_path, "--set", "sim.duration=60", "--realtime",
-                     "--foxglove", "127.0.0.1:0")
+                     "--foxglove", "127.0.0.1:0", "--rrd")
     log = tmp_path / f"{SCENARIO}.mcap"
     wait_for_samples(log, size=30_000)
     proc.send_signal(signal.SIGINT)

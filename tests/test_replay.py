@@ -212,7 +212,7 @@ def test_sigkilled_ftstab_run_replays_and_verifies_up_to_where_it_got(tmp_path):
 
     env = dict(os.environ, PYTHONPATH=str(ROOT))
     child = subprocess.Popen([sys.executable, "-m", "ftstab_mj", "run", "cart_r2_robust", "--set",
-                              "sim.duration=60", "--out", str(tmp_path)], stdout=subprocess.DEVNULL,
+                              "sim.duration=60", "--out", str(tmp_path), "--rrd"], stdout=subprocess.DEVNULL,
                              stderr=subprocess.DEVNULL, env=env, cwd=ROOT)
     mcap, rrd = tmp_path / "cart_r2_robust.mcap", tmp_path / "cart_r2_robust.rrd"
     try:

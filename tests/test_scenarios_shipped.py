@@ -121,7 +121,7 @@ def test_every_shipped_scenario_has_a_checked_claim():
 @pytest.mark.parametrize("name", sorted(CLAIMS))
 def test_shipped_scenario_does_what_its_description_says(name, tmp_path):
     duration, claim = CLAIMS[name]
-    args = ["run", name, "--out", tmp_path, "--json"]
+    args = ["run", name, "--out", tmp_path, "--json", "--rrd"]  # the recording of every plant, as a run writes it
     if duration is not None:
         args += ["--set", f"sim.duration={duration}"]
     proc = run_cli(*args)

@@ -158,6 +158,25 @@ def streamed_metrics(path):
     return log, metrics
 
 
+def replayed_metrics(log) -> dict:
+    """Metrics recomputed from a log read whole (LogData), with the recorded status (interrupted if none)."""
+    from ftstab_mj.metrics.run_metrics import compute_metrics
+    from ftstab_mj.simulation.records import INTERRUPTED
+
+    status = log.recorded["status"] if log.recorded else INTERRUPTED
+    return compute_metrics(log.info, log.loops, status)
+
+
+def write_log_rrd(log, metrics: dict, out, force: bool = False) -> None:
+    """The Rerun recording of a log read whole (LogData) at ``out``, as ``ftstab run --rrd`` writes
+    it: the plant in 3D at the logged poses, the plots, the blueprint, the status with ``metrics``."""
+    from ftstab_mj.logs.rerun_sink import write_rrd
+
+    message = log.recorded.get("message", "") if log.recorded else "truncated log"
+    write_rrd(out, log.info, log.loops, (log.pose_t, log.pose_pos, log.pose_quat), metrics["status"],
+              metrics, message, force=force)
+
+
 def port(text: str) -> int:
     try:
         number = int(text)

@@ -6,7 +6,7 @@ from __future__ import annotations
 import json
 import sys
 
-from ftstab_mj.cli.common import read_log, streamed_metrics
+from ftstab_mj.cli.common import read_log, replayed_metrics, streamed_metrics, write_log_rrd
 
 VERB = "replay"
 ORDER = 30  # its place in `ftstab --help`
@@ -33,7 +33,7 @@ def handle(args) -> int:
 
     if args.rrd:  # the recording needs the samples themselves
         log = read_log(args.log)
-        metrics = _replayed_metrics(log)
+        metrics = replayed_metrics(log)
     else:
         log, metrics = streamed_metrics(args.log)
     diff, derived, moved = [], [], []
@@ -44,11 +44,7 @@ def handle(args) -> int:
         derived, moved = found.derived, found.moved
         diff = [f"  {k}: recorded {rec!r}, recomputed {now!r}" for k, rec, now in found.differ]
     if args.rrd:
-        from ftstab_mj.logs.rerun_sink import write_rrd
-
-        message = log.recorded.get("message", "") if log.recorded else "truncated log"
-        write_rrd(args.rrd, log.info, log.loops, (log.pose_t, log.pose_pos, log.pose_quat), metrics["status"],
-                  metrics, message, force=args.force)
+        write_log_rrd(log, metrics, args.rrd, force=args.force)
     if args.json:
         print(json.dumps(metrics, indent=2, allow_nan=False))
     else:
@@ -95,11 +91,3 @@ def handle(args) -> int:
             failed = True
     return 1 if failed else 0
 
-
-def _replayed_metrics(log):
-    """Metrics recomputed from the log's arrays, with the recorded status (interrupted if none)."""
-    from ftstab_mj.metrics.run_metrics import compute_metrics
-    from ftstab_mj.simulation.records import INTERRUPTED
-
-    status = log.recorded["status"] if log.recorded else INTERRUPTED
-    return compute_metrics(log.info, log.loops, status)

@@ -17,7 +17,8 @@ def add_parser(sub) -> None:
     r = sub.add_parser(
         "run", help="run a scenario file, write its logs, print its metrics",
         description="Run SCENARIO (a .toml file, or the name of a shipped scenario: see `ftstab list`), "
-                    "write DIR/<name>.mcap (Foxglove) and DIR/<name>.rrd (Rerun), print the metrics. "
+                    "write DIR/<name>.mcap (Foxglove, replay; `ftstab view` makes a Rerun recording of it) and, "
+                    "with --rrd, DIR/<name>.rrd (Rerun), print the metrics. "
                     "Exit 0 when the run completed (converged or not: convergence is a metric), "
                     "1 when it diverged or failed, 130 when interrupted (Ctrl-C), 2 on bad input.",
         epilog="example: ftstab run scenarios/cart_r2_robust.toml --out runs --set sim.duration=2")
@@ -26,6 +27,9 @@ def add_parser(sub) -> None:
     r.add_argument("--set", action="append", default=[], metavar="KEY.PATH=VALUE",
                    help="override one field, validated like the file (repeatable), e.g. sim.duration=2 "
                         "or loops.cart.controller.gains[1]=3")
+    r.add_argument("--rrd", action="store_true",
+                   help="also write DIR/<name>.rrd, the Rerun recording, as the run goes (costs more CPU than the "
+                        "physics; `ftstab view DIR/<name>.mcap` makes the same one afterwards)")
     r.add_argument("--json", action="store_true",
                    help="print the metrics as JSON (the /metrics message of the log) instead of the table")
     r.add_argument("--force", action="store_true",
@@ -61,7 +65,8 @@ def handle(args) -> int:
     from ftstab_mj.logs.run_logs import open_run_logs
     from ftstab_mj.metrics.run_metrics import format_table
 
-    run_logs = open_run_logs(args.out, sc.name, force=args.force, what=f"--out {args.out}")  # the paths checked
+    run_logs = open_run_logs(args.out, sc.name, force=args.force, what=f"--out {args.out}",  # the paths checked
+                             rrd=args.rrd)
     paths = run_logs.paths
     say = (lambda *a, **k: None) if args.json else print  # --json: stdout carries the JSON only
     say(header(sc.name, sc.description, args.set))
@@ -109,7 +114,9 @@ def handle(args) -> int:
             print(json.dumps(run.metrics, indent=2))
         else:
             print(format_table(run.metrics))
-            print(f"logs: {paths[0]}  {paths[1]}")
+            print(f"logs: {'  '.join(map(str, paths))}")
+            if run_logs.rrd is None:
+                print(f"look: ftstab view {paths[0]}  (Rerun: the plant in 3D, z, u, V1 with Theorem 1's envelope)")
         status = run.result.status
         if status == "completed":
             return 0

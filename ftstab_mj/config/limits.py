@@ -17,7 +17,7 @@ MAX_INCLUDES = 256  # <include> files of one model, nested ones counted
 MAX_PLUGIN_BYTES = 1 * MiB  # a plugin's source file
 # -- logs --------------------------------------------------------------------------------------------------------
 MAX_LOG_BYTES = 64 * GiB  # a log file read by replay, report, check (mapped, not read into memory)
-MAX_STREAMED_LOG_BYTES = 1 * GiB  # a log read from a pipe or standard input (held in memory)
+MAX_RECORD_BYTES = 64 * MiB  # a record other than a chunk in a log read from a pipe (ours: < 1 MB)
 MAX_CHUNK_BYTES = 256 * MiB  # one decompressed MCAP chunk (the sink writes ~1 MB per batch)
 # -- runs --------------------------------------------------------------------------------------------------------
 MAX_SAMPLES = 10 ** 7  # control samples per run (duration / period)
@@ -34,8 +34,8 @@ TABLE = (  # (what, limit as the user reads it, where it is checked, why)
     ("each MJCF include", "16 MiB, 256 includes", "before MuJoCo parses the model", "as the model"),
     ("plugin source file", "1 MiB", "before it is imported", "a law or plant module is a few kB"),
     ("log file (replay, report, check)", "64 GiB", "at open", "mapped, read in bounded memory"),
-    ("log from a pipe or standard input", "1 GiB", "as it is read; its magic in the first 8 bytes",
-     "held in memory"),
+    ("log from a pipe or standard input", "64 GiB, each record 64 MiB (a chunk 256 MiB)",
+     "as it is read: its magic in the first 8 bytes, then each record's opcode and length", "read record by record"),
     ("decompressed MCAP chunk", "256 MiB", "before it is decompressed", "the sink writes ~1 MB per batch"),
     ("control samples per run", "10^7", "scenario load", "~3.5 GB of logs"),
     ("physics steps per run", "10^9", "scenario load", "about an hour of computing"),

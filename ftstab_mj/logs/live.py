@@ -282,7 +282,7 @@ def check_rerun_url(url: str, timeout: float = GRPC_PROBE_TIMEOUT) -> None:
                        f"(nothing listens, or no gRPC answer within {timeout:g} s)")
 
 
-def _rerun_binary() -> str | None:
+def rerun_binary() -> str | None:
     """The viewer binary rerun-sdk ships (the `rerun` command is a Python wrapper that runs it as a
     child: the process to stop is the binary), or None."""
     try:
@@ -312,7 +312,7 @@ def serve_rerun(grpc_port: int, web_port: int, timeout: float = 20.0) -> RerunSe
             raise LogError(f"--grpc-port {grpc_port}: expected a free port or a running Rerun server, found the port "
                            f"in use by another program (no gRPC answer within {GRPC_PROBE_TIMEOUT:g} s)")
         return RerunServer(url, web_url, None)
-    exe = _rerun_binary() or shutil.which("rerun")
+    exe = rerun_binary() or shutil.which("rerun")
     if exe is None:
         raise LogError("--live serve: expected the `rerun` command of rerun-sdk on PATH, found none")
     proc = subprocess.Popen([exe, "--serve-web", "--port", str(grpc_port), "--web-viewer-port", str(web_port)],

@@ -37,7 +37,7 @@ from ftstab_mj.config.errors import LogError
 from ftstab_mj.simulation.records import LOOP_FIELDS, RunInfo
 
 MCAP_MAGIC = b"\x89MCAP0\r\n"
-from ftstab_mj.config.limits import MAX_CHUNK_BYTES, MAX_LOG_BYTES, MAX_STREAMED_LOG_BYTES  # noqa: E402
+from ftstab_mj.config.limits import MAX_CHUNK_BYTES, MAX_LOG_BYTES, MAX_RECORD_BYTES  # noqa: E402
 MAX_EXPANSION = 64  # all chunks together decompress to at most this times the file size (+ 64 MiB)
 MAX_LOOPS = 64
 MAX_BODIES = 10_000
@@ -111,6 +111,7 @@ class _Damage(Exception):
 
     def __init__(self, offset: int, what: str, cut: bool = False):
         self.offset, self.what, self.cut = offset, what, cut  # cut: a top-level record runs past the file's end
+        self.in_chunk = False  # offset in a chunk's decompressed records, not in the file
 
 
 def _u(fmt: str, buf, pos: int, end: int, what: str):
@@ -158,13 +159,15 @@ class _Parser:
     messages themselves are handed over chunk by chunk (:meth:`walk`)."""
 
     def __init__(self, buf, path: str, release=None):
-        self.buf, self.path, self.total = buf, path, len(buf)
+        """buf: the whole file (a mapped file), or None for one read as it streams (:class:`_Stream`:
+        ``total`` then counts the bytes read so far)."""
+        self.buf, self.path, self.total = buf, path, len(buf) if buf is not None else len(MCAP_MAGIC)
         self.release = release  # release(offset): the file's bytes before offset are not read again
         self.schemas: dict[int, tuple] = {}  # id -> (name, encoding, data)
         self.channels: dict[int, tuple] = {}  # id -> (topic, schema id, message encoding)
         self.counts: dict[int, int] = {}  # channel id -> messages so far (their sequence numbers: 0, 1, ...)
         self.last_time: dict[int, int] = {}  # channel id -> log time (ns) of its last message
-        self.crc = zlib.crc32(bytes(buf[:len(MCAP_MAGIC)]))  # of the data section read so far
+        self.crc = zlib.crc32(MCAP_MAGIC)  # of the data section read so far (the caller checked the magic)
         self.versions: dict = {}
         self.chunks = 0
         self.crc_checked = True
@@ -174,6 +177,8 @@ class _Parser:
         self.data_end = None  # (record start, stored data-section CRC)
         self.stats = None  # (message count, chunk count, {channel: count}) from the summary
         self.footer = None  # (summary start, summary CRC, footer record start)
+        self.summary = None  # (offset of the first record after DataEnd, CRC of the records from it to the footer)
+        self.footer_head = b""  # the footer record's bytes its CRC covers (opcode, length, two offsets)
 
     # -- inside a chunk ---------------------------------------------------------------------------
     def _inner(self, buf, pos, end, chunk: int):
@@ -197,8 +202,8 @@ class _Parser:
                 staged[2].append((cid, (seq, t_log, bytes(buf[p:b1]))))
         return staged
 
-    def _chunk(self, b0: int, b1: int):
-        buf, k = self.buf, self.chunks + 1  # chunks are counted from 1 in messages
+    def _chunk(self, buf, b0: int, b1: int):
+        k = self.chunks + 1  # chunks are counted from 1 in messages
         (_t0, _t1, size, crc), p = _u("<QQQI", buf, b0, b1, f"chunk {k} header")
         comp, p = _string(buf, p, b1, f"chunk {k} compression")
         (n,), p = _u("<Q", buf, p, b1, f"chunk {k} records length")
@@ -230,7 +235,11 @@ class _Parser:
         elif zlib.crc32(raw) != crc:
             raise _Damage(b0, f"chunk {k} fails its CRC check")
         self.expanded += size
-        return self._inner(raw, 0, len(raw), k)
+        try:
+            return self._inner(raw, 0, len(raw), k)
+        except _Damage as d:
+            d.in_chunk = True
+            raise
 
     def _commit(self, staged):
         """A chunk found intact: its schemas and channels are known from now on; its messages
@@ -248,62 +257,92 @@ class _Parser:
         return messages
 
     # -- the file ---------------------------------------------------------------------------------
-    def walk(self):
-        """Walk every record, yielding the messages of each intact chunk in turn ([(channel id,
-        (sequence, log time, data))]). Raises _Damage at the first broken record; a cut at the end of a
-        file that never got its footer is a truncation (stops quietly, complete False)."""
-        buf, total = self.buf, self.total
-        ended = buf[-len(MCAP_MAGIC):] == MCAP_MAGIC and total >= 2 * len(MCAP_MAGIC)
-        in_summary = False
+    def _file_records(self):
+        """(opcode, buffer, body start, body end, record start) of the mapped file's top-level records."""
+        for op, b0, b1, start in _records(self.buf, len(MCAP_MAGIC), self.total, "in the file"):
+            yield op, self.buf, b0, b1, start
+
+    def walk(self, stream=None):
+        """Walk every record (of the mapped file, or of ``stream``: a :class:`_Stream`), yielding the
+        messages of each intact chunk in turn ([(channel id, (sequence, log time, data))]). Raises
+        _Damage at the first broken record; a cut at the end of a file that never got its footer is a
+        truncation (stops quietly, complete False)."""
+        if stream is None:
+            buf, total = self.buf, self.total
+            ended = bool(buf[-len(MCAP_MAGIC):] == MCAP_MAGIC and total >= 2 * len(MCAP_MAGIC))
+            records = self._file_records()
+        else:
+            records = stream.records(self)
         try:
-            for op, b0, b1, start in _records(buf, len(MCAP_MAGIC), total, "in the file"):
-                allowed = _SUMMARY if in_summary else _DATA_SECTION
-                if op not in allowed:
-                    raise _Damage(start, f"unexpected {_OP.get(op, f'0x{op:02x}')} record "
-                                         f"{'in the summary' if in_summary else 'in the data section'}")
-                if not in_summary and op != 0x0F:  # the data section's CRC covers what precedes DataEnd
-                    self.crc = zlib.crc32(buf[start:b1], self.crc)
-                if op == 0x06:
-                    messages = self._commit(self._chunk(b0, b1))
-                    self.chunks += 1
-                    self.good = b1
-                    if self.release is not None:
-                        self.release(b1)
+            for op, buf, b0, b1, start in records:
+                try:
+                    messages = self._record(op, buf, b0, b1, start)
+                except _Damage as d:  # a stream's record is a buffer of its own: the offset in the file
+                    if stream is not None and not d.in_chunk:
+                        d.offset += start - (b0 - 9)
+                    raise
+                if messages is not None:
                     yield messages
-                    continue
-                elif op == 0x0C:
-                    name, p = _string(buf, b0, b1, "metadata name")
-                    (n,), p = _u("<I", buf, p, b1, "metadata map length")
-                    q, entries = p, {}
-                    while q < p + n:
-                        key, q = _string(buf, q, b1, "metadata key")
-                        value, q = _string(buf, q, b1, "metadata value")
-                        entries[key] = value
-                    if name == "versions":
-                        self.versions = entries
-                elif op == 0x0F:
-                    (crc,), _ = _u("<I", buf, b0, b1, "data end")
-                    self.data_end = (start, crc)
-                    in_summary = True
-                elif op == 0x0B:
-                    (count, _s, _c, _a, _m, chunks, _t0, _t1), p = _u("<QHIIIIQQ", buf, b0, b1, "statistics")
-                    (n,), p = _u("<I", buf, p, b1, "statistics channel counts")
-                    if n != b1 - p or n % 10:
-                        raise _Damage(p, "the statistics' channel counts do not fill their record")
-                    per = {cid: c for cid, c in struct.iter_unpack("<HQ", bytes(buf[p:b1]))}
-                    self.stats = (count, chunks, per)
-                elif op == 0x02:
-                    (s_start, _off, s_crc), _ = _u("<QQI", buf, b0, b1, "footer")
-                    self.footer = (s_start, s_crc, start)
-                    self.complete = True
-                    self.good = total
+                if self.complete:
+                    if stream is not None:
+                        stream.finish(self)
+                    self.good = self.total
                     return
-                if not in_summary:
-                    self.good = b1
         except _Damage as d:
-            if d.cut and not ended:  # a run killed mid-way: keep what was flushed
+            if d.cut and not (ended if stream is None else stream.ended):  # a run killed mid-way: keep what was flushed
                 return
             raise
+
+    def _record(self, op: int, buf, b0: int, b1: int, start: int):
+        """Read one top-level record (its body buf[b0:b1], starting at byte ``start`` of the file): the
+        messages of a chunk, else None; the footer sets :attr:`complete`."""
+        in_summary = self.data_end is not None
+        allowed = _SUMMARY if in_summary else _DATA_SECTION
+        if op not in allowed:
+            raise _Damage(b0 - 9, f"unexpected {_OP.get(op, f'0x{op:02x}')} record "
+                                  f"{'in the summary' if in_summary else 'in the data section'}")
+        whole = buf[b0 - 9:b1]  # the record with its opcode and length
+        if not in_summary and op != 0x0F:  # the data section's CRC covers what precedes DataEnd
+            self.crc = zlib.crc32(whole, self.crc)
+        elif in_summary and op != 0x02:  # the summary's CRC: its records, then the footer's head
+            self.summary = (self.summary[0], zlib.crc32(whole, self.summary[1]))
+        end = start + 9 + (b1 - b0)  # where the record ends in the file
+        if op == 0x06:
+            messages = self._commit(self._chunk(buf, b0, b1))
+            self.chunks += 1
+            self.good = end
+            if self.release is not None:
+                self.release(end)
+            return messages
+        if op == 0x0C:
+            name, p = _string(buf, b0, b1, "metadata name")
+            (n,), p = _u("<I", buf, p, b1, "metadata map length")
+            q, entries = p, {}
+            while q < p + n:
+                key, q = _string(buf, q, b1, "metadata key")
+                value, q = _string(buf, q, b1, "metadata value")
+                entries[key] = value
+            if name == "versions":
+                self.versions = entries
+        elif op == 0x0F:
+            (crc,), _ = _u("<I", buf, b0, b1, "data end")
+            self.data_end = (start, crc)
+            self.summary = (end, 0)
+        elif op == 0x0B:
+            (count, _s, _c, _a, _m, chunks, _t0, _t1), p = _u("<QHIIIIQQ", buf, b0, b1, "statistics")
+            (n,), p = _u("<I", buf, p, b1, "statistics channel counts")
+            if n != b1 - p or n % 10:
+                raise _Damage(p, "the statistics' channel counts do not fill their record")
+            per = {cid: c for cid, c in struct.iter_unpack("<HQ", bytes(buf[p:b1]))}
+            self.stats = (count, chunks, per)
+        elif op == 0x02:
+            (s_start, _off, s_crc), _ = _u("<QQI", buf, b0, b1, "footer")
+            self.footer = (s_start, s_crc, start)
+            self.footer_head = bytes(buf[b0 - 9:b0 + 16])
+            self.complete = True
+        if not in_summary:
+            self.good = end
+        return None
 
     def check_integrity(self) -> list[str]:
         """For a complete file: the stored CRCs and counts. Raises _Damage when samples may be
@@ -313,7 +352,10 @@ class _Parser:
         if self.footer is not None:
             s_start, s_crc, f_start = self.footer
             if s_crc and 0 < s_start <= f_start:
-                got = zlib.crc32(bytes(self.buf[f_start:f_start + 9 + 16]), zlib.crc32(bytes(self.buf[s_start:f_start])))
+                if self.buf is not None:
+                    got = zlib.crc32(bytes(self.buf[f_start:f_start + 9 + 16]), zlib.crc32(bytes(self.buf[s_start:f_start])))
+                else:  # read as it streamed: the CRC of the records after DataEnd, where the summary starts
+                    got = zlib.crc32(self.footer_head, self.summary[1]) if s_start == self.summary[0] else None
                 summary_ok = got == s_crc
                 if not summary_ok:
                     notes.append(f"{self.path}: the summary fails its CRC check (not used).")
@@ -404,8 +446,8 @@ class LogStream:
 
     def batches(self):
         path = self.path
-        with _mapped(path) as (buf, release):
-            if bytes(buf[:len(MCAP_MAGIC)]) != MCAP_MAGIC:
+        with _mapped(path) as (buf, release, source):
+            if source is None and bytes(buf[:len(MCAP_MAGIC)]) != MCAP_MAGIC:
                 raise LogError(f"{path}: not an MCAP log (expected a file starting with the MCAP magic bytes, "
                                f"found {bytes(buf[:8])!r})")
             p = _Parser(buf, path, release)
@@ -413,7 +455,7 @@ class LogStream:
             pending = []  # loop messages met before /run_info (not in a log ftstab wrote)
             notes = []
             try:
-                for messages in p.walk():
+                for messages in p.walk(source):
                     loops = {}
                     for cid, (_seq, _t, data) in messages:
                         topic = p.channels.get(cid, ("?", 0, ""))[0]
@@ -507,29 +549,72 @@ def _empty_loop(r: int) -> dict:
     return {f: np.empty((0, r)) if f == "z" else np.empty(0) for f in LOOP_FIELDS}
 
 
-def _read_bounded(f, path: str) -> bytes:
-    """What an unmappable log (a pipe, standard input, a device, an empty file) holds: its first bytes must be
-    MCAP's magic (``/dev/zero`` is refused at its 8th byte), and it is read to its end only up to
-    MAX_STREAMED_LOG_BYTES (held in memory), else refused. LogError (one line) names the file."""
-    head = f.read(len(MCAP_MAGIC))
-    if len(head) == len(MCAP_MAGIC) and head != MCAP_MAGIC:
-        raise LogError(f"{path}: expected an MCAP log (its first bytes {MCAP_MAGIC!r}), found {head[:8]!r}")
-    parts, size = [head], len(head)
-    while head:
-        head = f.read(min(1 << 24, MAX_STREAMED_LOG_BYTES + 1 - size))
-        parts.append(head)
-        size += len(head)
-        if size > MAX_STREAMED_LOG_BYTES:
-            raise LogError(f"{path}: expected a log read from a pipe or device to hold at most "
-                           f"{MAX_STREAMED_LOG_BYTES} bytes (a limit; give the file itself), found more")
-    return b"".join(parts)
+class _Stream:
+    """The top-level records of a log read from a pipe, standard input or a device, one at a time, in
+    memory bounded by the largest record accepted (:data:`MAX_CHUNK_BYTES` for a chunk,
+    :data:`MAX_RECORD_BYTES` for any other), whatever the stream's length: its first bytes must be
+    MCAP's magic (``/dev/zero`` is refused at its 8th byte) and every record's opcode and declared length
+    are checked before its body is read (``/dev/urandom`` is refused at its first record)."""
+
+    def __init__(self, f, path: str):
+        self.f, self.path = f, path
+        self.tail = b""  # the stream's last bytes read (whether a cut stream ended with the magic)
+        self.ended = False  # the stream ended with MCAP's magic (a cut there is damage, not a truncation)
+        head = self._read(len(MCAP_MAGIC))
+        if head != MCAP_MAGIC:
+            raise LogError(f"{path}: expected an MCAP log (its first bytes {MCAP_MAGIC!r}), found {head[:8]!r}")
+        self.pos = len(head)
+
+    def _read(self, n: int) -> bytes:
+        """Up to n bytes (fewer at the end), read a MiB at a time so that memory follows what comes."""
+        parts, got = [], 0
+        while got < n:
+            part = self.f.read(min(n - got, 1 << 20))
+            if not part:
+                break
+            parts.append(part)
+            got += len(part)
+        data = b"".join(parts)
+        self.tail = (self.tail + data[-len(MCAP_MAGIC):])[-len(MCAP_MAGIC):]
+        if got < n:
+            self.ended = self.tail == MCAP_MAGIC and self.pos + got >= 2 * len(MCAP_MAGIC)
+        return data
+
+    def records(self, parser: _Parser):
+        """(opcode, buffer, body start, body end, record start) of each record, as _Parser.walk reads
+        them; parser.total follows the bytes read."""
+        while True:
+            start = self.pos
+            head = self._read(9)
+            if not head:
+                return  # the stream ends between two records, without a footer: a truncated log
+            if len(head) < 9:
+                raise _Damage(start, "a record header in the file is cut short", cut=True)
+            op, length = struct.unpack("<BQ", head)
+            if op not in _OP:
+                raise _Damage(start, f"unknown record opcode 0x{op:02x} in the file")
+            limit = MAX_CHUNK_BYTES + (1 << 20) if op == 0x06 else MAX_RECORD_BYTES  # a chunk: compressed + header
+            if length > limit or start + 9 + length > MAX_LOG_BYTES:
+                raise _Damage(start, f"the {_OP[op]} record in the file declares {length} bytes, more than a log "
+                                     f"read as it streams accepts ({limit})")
+            body = self._read(length)
+            self.pos = parser.total = start + 9 + len(body)
+            if len(body) < length:
+                raise _Damage(start, f"the {_OP[op]} record in the file declares {length} bytes, past the end "
+                                     f"({len(body)} left)", cut=True)
+            yield op, head + body, 9, 9 + length, start
+
+    def finish(self, parser: _Parser) -> None:
+        """After the footer: its closing magic (parser.total counts it; what may follow is not read)."""
+        parser.total = self.pos + len(self._read(len(MCAP_MAGIC)))
 
 
 class _mapped:
-    """``with _mapped(path) as (buf, release)``: the file's bytes as a memoryview of a read-only map
-    (read into memory when it cannot be mapped, e.g. an empty file or a pipe); release(offset) gives the
-    pages before offset back (MADV_DONTNEED: read again from the page cache if touched), so a long log
-    read front to back does not stay resident."""
+    """``with _mapped(path) as (buf, release, stream)``: the file's bytes as a memoryview of a read-only
+    map, release(offset) giving the pages before offset back (MADV_DONTNEED: read again from the page
+    cache if touched), so a long log read front to back does not stay resident; stream None. A file that
+    cannot be mapped (a pipe, standard input as ``-`` or ``/dev/stdin``, a FIFO, a device, an empty
+    file): buf and release None, stream a :class:`_Stream` of it (its magic checked)."""
 
     def __init__(self, path: str):
         self.path = path
@@ -541,7 +626,7 @@ class _mapped:
         import stat
 
         try:
-            f = open(self.path, "rb")
+            f = open(0 if self.path == "-" else self.path, "rb", closefd=self.path != "-")  # -: standard input
             st = os.fstat(f.fileno())
         except OSError as exc:
             raise LogError(f"{self.path}: cannot read the log ({exc.strerror})") from None
@@ -559,16 +644,15 @@ class _mapped:
             self.map = mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ)
         except (OSError, ValueError):
             try:
-                data = _read_bounded(f, self.path)
+                return None, None, _Stream(f, self.path)
             except OSError as exc:
                 f.close()
                 raise LogError(f"{self.path}: cannot read the log ({exc.strerror})") from None
             except LogError:
                 f.close()
                 raise
-            return memoryview(data), None
         self.view = memoryview(self.map)
-        return self.view, self._release if hasattr(mmap, "MADV_DONTNEED") else None
+        return self.view, self._release if hasattr(mmap, "MADV_DONTNEED") else None, None
 
     def _release(self, offset: int) -> None:
         import mmap
