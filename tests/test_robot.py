@@ -273,3 +273,46 @@ def test_api_overrides_take_a_dict_as_a_table_and_scenarios_come_from_dicts(tmp_
     assert user.plant.model == str(tmp_path / "robot.xml")
     with pytest.raises(ScenarioError, match=r"loops.cart.controller.gains"):
         ftstab_mj.load_scenario("cart_r2_robust", overrides={"loops.cart.controller": {**table, "gains": [1.0]}})
+
+
+
+def _pendulum(tmp_path, pole: str):
+    """The scenario of docs/your-robot.md (the robust law, bounds computed over a workspace of both
+    joints) on gymnasium's inverted pendulum, its pole upright or hung down (``pole``: the geom's fromto).
+    Returns the run, the controller (its phibar and gamma_m computed) and the pole's angle (n,) rad."""
+    xml = (ASSETS / "inverted_pendulum.xml").read_text()
+    assert 'fromto="0 0 0 0.001 0 0.6"' in xml
+    (tmp_path / "pendulum.xml").write_text(xml.replace('fromto="0 0 0 0.001 0 0.6"', f'fromto="{pole}"'))
+    raw = {"name": "my_pendulum", "description": "the robust law moves the cart, bounds computed",
+           "plant": {"model": "pendulum.xml", "grid": 7,
+                     "loops": {"cart": {"joint": "slider", "saturation": True, "u_max": 1.0}},
+                     "workspace": {"slider": {"q": [-0.5, 0.5], "qd_max": 1.0},
+                                   "hinge": {"q": [-0.5, 0.5], "qd_max": 2.0}}},
+           "sim": {"duration": 2.0},
+           "loops": {"cart": {"z0": [-0.2, 0.0], "ref": 0.1, "controller": {
+               "law": "robust", "k": -0.2, "gains": [1.0, 2.0], "phibar": "computed", "gamma_m": "computed"}}}}
+    sc = ftstab_mj.scenario_from_dict(raw, base_dir=tmp_path)
+    res = ftstab_mj.run(sc)
+    pole = 2.0 * np.arctan2(res.body_quat[:, 1, 2], res.body_quat[:, 1, 0])  # body 1, the pole, turns about y
+    return res, sc.loops[0].controller, pole
+
+
+def test_the_time_bound_is_not_claimed_once_the_logged_phi_or_gamma_left_the_computed_bounds(tmp_path):
+    """Upright, the passive pole falls out of the workspace of the computed bounds (|hinge| <= 0.5 rad)
+    while the cart's own z stays in its workspace: the logged true gamma leaves [gamma_m, ...) the law
+    assumed, so T(z0) is not claimed, and the reason names the loop, the quantity, the bound and the
+    first sample out. Hung down, the pole swings inside and the same law's bound is claimed (and beaten)."""
+    res, law, pole = _pendulum(tmp_path, "0 0 0 0.001 0 0.6")
+    m, a = res.metrics["loops"]["cart"], res.samples["cart"]
+    assert np.max(np.abs(pole)) > 0.5 and m["workspace_left"] == ""  # the pole left, the cart did not
+    assert m["bound_applies"] is False and m["beat_bound"] is None, m
+    out = (np.abs(a["phi"]) > law.phibar) | (a["gamma"] < law.gamma_m)  # Theorem 2's hypothesis, per sample
+    k = int(np.argmax(out))
+    assert out[k] and m["bound_applies_reason"] == (
+        f"loop 'cart': the logged true gamma reached {a['gamma'][k]:.4g} at t = {a['t'][k]:.6g} s, outside the "
+        f"bounds the law assumed (phibar = {law.phibar:.4g}, gamma_m = {law.gamma_m:.4g})")
+    res, law, pole = _pendulum(tmp_path, "0 0 0 0.001 0 -0.6")
+    m, a = res.metrics["loops"]["cart"], res.samples["cart"]
+    assert np.max(np.abs(pole)) < 0.5 and m["workspace_left"] == ""
+    assert np.max(np.abs(a["phi"])) <= law.phibar and np.min(a["gamma"]) >= law.gamma_m
+    assert m["bound_applies"] is True and m["beat_bound"] is True and m.get("bound_applies_reason") is None, m
