@@ -166,6 +166,8 @@ def test_the_cart_tracks_a_sine_with_the_robust_law():
     res = ftstab_mj.run(sc)
     a, m = res.samples["cart"], res.metrics["loops"]["cart"]
     assert m["final_abs_z_max"][0] < 1e-3 and m["settle_time_z1"] < 5.0, m
+    # phibar = 4 covers the disturbance's 0.5 plus max |ref''| = 0.3 pi^2
+    assert m["reference_r_max_abs"] == pytest.approx(0.3 * math.pi ** 2) and m["phibar_covers_reference"] is True
     x = res.body_pos[:, 0, 0]  # the cart's position (its body sits on the slide's origin)
     ref = 0.3 * np.sin(2 * math.pi * 0.5 * a["t"])
     assert np.array_equal(a["z"][:, 0], x - ref)
@@ -316,3 +318,14 @@ def test_the_time_bound_is_not_claimed_once_the_logged_phi_or_gamma_left_the_com
     assert np.max(np.abs(pole)) < 0.5 and m["workspace_left"] == ""
     assert np.max(np.abs(a["phi"])) <= law.phibar and np.min(a["gamma"]) >= law.gamma_m
     assert m["bound_applies"] is True and m["beat_bound"] is True and m.get("bound_applies_reason") is None, m
+
+
+@pytest.mark.parametrize("phibar, covers", [(2.0, False), (3.2, False), (3.5, True)])
+def test_the_metrics_say_whether_phibar_covers_the_references_rth_derivative(phibar, covers):
+    """max |ref''| = 0.3 pi^2 = 2.96 and the disturbance's 0.5: phibar 2 misses the reference alone,
+    3.2 the sum 3.46, 3.5 covers both."""
+    raw = scenario_to_dict(_cart_tracking({"kind": "sine", "amplitude": 0.3, "freq": 0.5}, duration=0.2))
+    raw["loops"]["cart"]["controller"]["phibar"] = phibar
+    m = ftstab_mj.run(scenario_from_dict(raw)).metrics["loops"]["cart"]
+    assert m["reference_r_max_abs"] == pytest.approx(0.3 * math.pi ** 2)
+    assert m["phibar_covers_reference"] is covers

@@ -218,6 +218,23 @@ class AssumedBounds:
                        f"bounds the law assumed ({assumed})")
 
 
+def reference_cover(loop) -> dict:
+    """Whether the law's phibar covers a tracked reference: phi of the error chain holds -ref^(r)
+    (z_r' = q^(r) - ref^(r)), so phibar must bound the plant's |phi| plus max |ref^(r)| over the run.
+    ``reference_r_max_abs``: max |ref^(r)| (chain units); ``phibar_covers_reference``: phibar >= the
+    true bound (the plant's, which includes it) when that is finite; false when phibar < max |ref^(r)|
+    alone; None when the plant's own bound is unknown (infinite) or the law assumes no phibar."""
+    need = float(loop.reference["max_abs"][loop.r])
+    phibar = loop.law_params.get("phibar")
+    if not _is_finite_number(phibar):
+        covers = None
+    elif phibar < need:
+        covers = False
+    else:
+        covers = bool(phibar >= loop.true_phibar) if _is_finite_number(loop.true_phibar) else None
+    return {"reference_r_max_abs": _num(need), "phibar_covers_reference": covers}
+
+
 def stage_reasons(stages: dict | None) -> list[str]:
     """Why the paper's guarantee does not cover a loop with these stages (LoopInfo.stages): the
     theorems assume the exact state and an actuator that delivers any u at once. [] when it does:
@@ -862,6 +879,8 @@ class _LoopStream:
                 "chattering_applied": chattering(fw.u_applied[:fw.m], h),
                 "u_applied_max_abs": _num(self.u_applied_max),
             })
+        if loop.reference is not None:  # a tracked reference: its ref^(r) is part of phi
+            out.update(reference_cover(loop))
         if reasons and "bound_applies_reason" not in out:
             out["bound_applies_reason"] = "; ".join(reasons)
         return out
