@@ -24,7 +24,9 @@ from conftest import free_port, rrd_rows, run_cli, start_cli, wait_for_samples
 from ftstab_mj.logs.reader import read_log
 
 SCENARIO = "cart_r2_robust"
-SUBPROTOCOL = "foxglove.sdk.v1"  # what the foxglove-sdk 0.30 server speaks (and "foxglove.websocket.v1")
+# the protocol's two names: foxglove-sdk's (the Foxglove app) and the former one of older clients (Lichtblick,
+# ws-protocol), which foxglove-sdk 0.30's server refuses with HTTP 400 and the live server's relay lets in
+SUBPROTOCOLS = ("foxglove.sdk.v1", "foxglove.websocket.v1")
 
 
 def _mcap_messages(path) -> dict:
@@ -51,13 +53,14 @@ def _read_line(stream, prefix: str, timeout: float = 120.0) -> str:
     raise AssertionError(f"no line starting with {prefix!r}; got: {''.join(seen)[-2000:]}")
 
 
-def _foxglove_client(url: str, timeout: float = 120.0):
-    """Subscribe to every channel the server advertises; return (channels {id: advertisement},
-    messages [(channel id, log time, payload)]) received until the server closes the connection."""
+def _foxglove_client(url: str, subprotocol: str = SUBPROTOCOLS[0], timeout: float = 120.0):
+    """Subscribe to every channel the server advertises, offering only ``subprotocol``; return (channels
+    {id: advertisement}, messages [(channel id, log time, payload)]) received until the server closes
+    the connection."""
     channels, received, subs = {}, [], {}
     deadline = time.monotonic() + timeout
-    with connect(url, subprotocols=[SUBPROTOCOL], open_timeout=30) as ws:
-        assert ws.subprotocol == SUBPROTOCOL
+    with connect(url, subprotocols=[subprotocol], open_timeout=30) as ws:
+        assert ws.subprotocol == subprotocol
         while time.monotonic() < deadline:
             try:
                 frame = ws.recv(timeout=max(0.1, deadline - time.monotonic()))
@@ -78,9 +81,10 @@ def _foxglove_client(url: str, timeout: float = 120.0):
     return channels, received
 
 
-def test_foxglove_client_receives_the_mcap_logs_messages_as_they_are_written(tmp_path):
+@pytest.mark.parametrize("subprotocol", SUBPROTOCOLS)
+def test_foxglove_client_receives_the_mcap_logs_messages_as_they_are_written(tmp_path, subprotocol):
     """A run served with --foxglove on a free port (port 0) and paced with --realtime: a WebSocket
-    client that subscribes to every advertised channel gets the MCAP log's channels with the same
+    client (of either subprotocol) that subscribes to every advertised channel gets the MCAP log's channels with the same
     schemas, and every message it gets is one the log holds at that log time, byte for byte; from
     the first loop sample it gets to the end of the run it gets every one (none dropped, in order);
     the loop messages decode (the advertised schema, mcap-protobuf-support) to the logged samples."""
@@ -93,7 +97,7 @@ def test_foxglove_client_receives_the_mcap_logs_messages_as_they_are_written(tmp
     try:
         line = _read_line(proc.stderr, "foxglove: serving ")
         url = line.split()[2]
-        channels, received = _foxglove_client(url)
+        channels, received = _foxglove_client(url, subprotocol)
         out, err = proc.communicate(timeout=120)
     finally:
         proc.kill()

@@ -6,7 +6,10 @@ choice of a Rerun viewer, and real-time pacing.
   the log gets is also published, byte for byte and at the same log time (sim time in ns): a
   Foxglove app connected to the server shows what it shows of the file, with the same layout.
   The one-off messages (``/scene``, ``/scenario``, ``/run_info``, ``/metrics``) are sent again to
-  each client that subscribes later (a WebSocket server keeps no history).
+  each client that subscribes later (a WebSocket server keeps no history). It speaks both names of
+  the protocol: ``foxglove.sdk.v1`` (foxglove-sdk's, the Foxglove app) and ``foxglove.websocket.v1``
+  (older clients: Lichtblick, ws-protocol), the same protocol under its former name
+  (:class:`_SubprotocolRelay`).
 - :func:`rerun_target` (``ftstab run --live``): "spawn" a native Rerun viewer when there is a display,
   else "serve" (a ``rerun --serve-web`` server: web viewer and gRPC, logs/rerun_sink.start_viewer).
 - :class:`Pacer` (``--realtime``): a sink that holds each batch until the wall clock has reached
@@ -113,7 +116,7 @@ class FoxgloveServer:
         self._latched: dict[str, tuple[int, bytes]] = {}  # topic -> (log time, message)
         self._resend: set[str] = set()  # latched topics a client subscribed to since they were last sent
         self.host, self._port, self.name, self._say = host, port, name, say
-        self._server = None
+        self._server = self._relay = None
         if port:
             _check_bindable(host, port)
 
@@ -128,19 +131,29 @@ class FoxgloveServer:
                 if channel.topic in LATCHED:  # sent with the next batch (not from the server's thread)
                     outer._resend.add(channel.topic)
 
-        self._server = fg.start_server(name=self.name, host=self.host, port=self._port, context=self._context,
+        # foxglove-sdk 0.30 answers HTTP 400 to the former name: it listens on a private loopback port
+        # and the relay on the user's, renaming the subprotocol in the handshake
+        self._server = fg.start_server(name=self.name, host="127.0.0.1", port=0, context=self._context,
                                        server_listener=_Listener(), message_backlog_size=BACKLOG)
+        self._relay = _SubprotocolRelay(self.host, self._port, ("127.0.0.1", self._server.port))
         if self._say is not None:
             self._say(f"foxglove: serving {self.url} while the run lasts (Foxglove: Open connection > Foxglove "
-                      f"WebSocket, or {self._server.app_url()})")
+                      f"WebSocket, or {self.app_url})")
 
     @property
     def port(self) -> int:
-        return self._server.port if self._server is not None else self._port
+        return self._relay.port if self._server is not None else self._port
 
     @property
     def url(self) -> str:
         return f"ws://{self.host}:{self.port}"
+
+    @property
+    def app_url(self) -> str:
+        """The Foxglove web app opening :attr:`url` (the relay's, not the SDK server's private port)."""
+        from urllib.parse import quote
+
+        return "https://app.foxglove.dev?ds=foxglove-websocket&ds.url=" + quote(self.url, safe="")
 
     def mirror(self, writer):
         """The MCAP sink's writer (logs/mcap_file.McapFile), wrapped so that what it writes is also published."""
@@ -169,8 +182,132 @@ class FoxgloveServer:
 
     def stop(self) -> None:
         if self._server is not None:
+            self._relay.stop()
             self._server.stop()
             self._server = None
+
+
+SDK_SUBPROTOCOL = "foxglove.sdk.v1"  # what foxglove-sdk 0.30's server accepts
+FORMER_SUBPROTOCOL = "foxglove.websocket.v1"  # the same protocol's former name, which it refuses
+_MAX_HEAD = 64 * 1024  # bytes of an HTTP request or response head (a handshake is < 1 kB)
+
+
+def _rename_subprotocol(head: bytes, old: str, new: str) -> tuple[bytes, bool]:
+    """``head`` (an HTTP head, CRLF lines) with ``old`` replaced by ``new`` in its Sec-WebSocket-Protocol
+    header when that header offers ``old`` and not ``new``; (head, whether it was renamed)."""
+    lines = head.split(b"\r\n")
+    for k, line in enumerate(lines):
+        name, sep, value = line.partition(b":")
+        if sep and name.strip().lower() == b"sec-websocket-protocol":
+            offered = [v.strip() for v in value.decode("latin-1").split(",")]
+            if old in offered and new not in offered:
+                lines[k] = name + b": " + ", ".join(new if v == old else v for v in offered).encode("latin-1")
+                return b"\r\n".join(lines), True
+    return head, False
+
+
+class _SubprotocolRelay:
+    """A TCP relay from ``host``:``port`` (0: a free port) to ``upstream`` (the SDK's server) that lets a
+    client offering only ``foxglove.websocket.v1`` in: its handshake reaches the server offering
+    ``foxglove.sdk.v1`` and the server's answer returns naming ``foxglove.websocket.v1`` (the accept
+    key does not depend on it); every other byte passes unchanged, both ways. One thread accepts,
+    one per connection relays."""
+
+    def __init__(self, host: str, port: int, upstream: tuple[str, int]):
+        import socket
+        import threading
+
+        self._upstream = upstream
+        self._listener = socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET)
+        self._listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        self._listener.bind((host, port))
+        self._listener.listen(16)
+        self.port = self._listener.getsockname()[1]
+        self._open: set = set()  # the sockets of live connections, closed at stop
+        self._lock = threading.Lock()
+        self._stopped = False
+        self._thread = threading.Thread(target=self._accept, name="foxglove-relay", daemon=True)
+        self._thread.start()
+
+    def _accept(self) -> None:
+        import threading
+
+        while True:
+            try:
+                client, _ = self._listener.accept()
+            except OSError:  # closed by stop
+                return
+            threading.Thread(target=self._serve, args=(client,), name="foxglove-relay-conn", daemon=True).start()
+
+    def _serve(self, client) -> None:
+        import selectors
+        import socket
+
+        upstream = None
+        try:
+            with self._lock:
+                if self._stopped:
+                    return
+                self._open.add(client)
+            head, rest = _read_head(client)
+            head, renamed = _rename_subprotocol(head, FORMER_SUBPROTOCOL, SDK_SUBPROTOCOL)
+            upstream = socket.create_connection(self._upstream, timeout=30)
+            upstream.settimeout(None)
+            with self._lock:
+                self._open.add(upstream)
+            upstream.sendall(head + rest)
+            head, rest = _read_head(upstream)
+            if renamed:
+                head = _rename_subprotocol(head, SDK_SUBPROTOCOL, FORMER_SUBPROTOCOL)[0]
+            client.sendall(head + rest)
+            sel = selectors.DefaultSelector()
+            sel.register(client, selectors.EVENT_READ, upstream)
+            sel.register(upstream, selectors.EVENT_READ, client)
+            while True:
+                for key, _ in sel.select():
+                    data = key.fileobj.recv(65536)
+                    if not data:
+                        return
+                    key.data.sendall(data)
+        except (OSError, ValueError):  # a client gone, a malformed head, or stop closing the sockets
+            return
+        finally:
+            for s in (client, upstream):
+                if s is not None:
+                    with self._lock:
+                        self._open.discard(s)
+                    s.close()
+
+    def stop(self) -> None:
+        import socket
+
+        with self._lock:
+            self._stopped = True
+            live = list(self._open)
+        try:
+            self._listener.shutdown(socket.SHUT_RDWR)
+        except OSError:
+            pass
+        self._listener.close()
+        for s in live:
+            try:
+                s.shutdown(socket.SHUT_RDWR)
+            except OSError:
+                pass
+        self._thread.join(timeout=5)
+
+
+def _read_head(sock) -> tuple[bytes, bytes]:
+    """(an HTTP head up to and excluding its blank line's CRLF CRLF, what followed it, the CRLF CRLF first)
+    read from ``sock``; ValueError past _MAX_HEAD bytes or when the peer closes first."""
+    buf = b""
+    while b"\r\n\r\n" not in buf:
+        data = sock.recv(4096)
+        if not data or len(buf) > _MAX_HEAD:
+            raise ValueError("no HTTP head")
+        buf += data
+    head, _, rest = buf.partition(b"\r\n\r\n")
+    return head, b"\r\n\r\n" + rest
 
 
 def _check_bindable(host: str, port: int) -> None:

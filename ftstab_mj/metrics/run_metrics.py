@@ -176,6 +176,65 @@ def bound_applies(loop) -> bool:
     return bool(law.bound_holds(loop.law_params, loop.true_phibar, loop.true_gamma_m, loop.true_gamma_M))
 
 
+class AssumedBounds:
+    """Where the logged true phi and gamma first left the bounds the law assumes (Theorem 2's
+    hypothesis, checked at the samples): the law's own ``bound_holds`` on the running max |phi| and
+    range of gamma (chain units), so a plant's computed bounds that did not hold (a passive joint
+    out of its workspace, a contact) are caught by what MuJoCo computed. Fed batches in order."""
+
+    def __init__(self, loop):
+        self.loop, self.law = loop, declared(loop.law)
+        self.phi, self.g_lo, self.g_hi = 0.0, math.inf, -math.inf  # over the samples so far
+        self.reason = None  # the first departure, a sentence
+
+    def _holds(self, phi, g_lo, g_hi) -> bool:
+        return bool(self.law.bound_holds(self.loop.law_params, phi, g_lo, g_hi))
+
+    def update(self, t, phi, gamma) -> None:
+        if self.reason is not None or len(t) == 0:
+            return
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # NaN (a diverged run) is skipped by fmax/fmin
+            cphi = np.fmax.accumulate(np.concatenate([[self.phi], np.abs(phi)]))
+            clo = np.fmin.accumulate(np.concatenate([[self.g_lo], gamma]))
+            chi = np.fmax.accumulate(np.concatenate([[self.g_hi], gamma]))
+        if self._holds(cphi[-1], clo[-1], chi[-1]):
+            self.phi, self.g_lo, self.g_hi = float(cphi[-1]), float(clo[-1]), float(chi[-1])
+            return
+        lo, hi = 1, len(cphi) - 1  # the running extremes only grow: bisect for the first failing sample
+        while lo < hi:
+            mid = (lo + hi) // 2
+            if self._holds(cphi[mid], clo[mid], chi[mid]):
+                lo = mid + 1
+            else:
+                hi = mid
+        k, p = lo, self.loop.law_params
+        assumed = ", ".join(f"{key} = {p[key]:.4g}" for key in ("phibar", "gamma_m", "gamma_M") if _is_finite_number(p.get(key)))
+        if not self._holds(cphi[k], clo[k - 1], chi[k - 1]):
+            what = f"|phi| reached {abs(float(phi[k - 1])):.4g}"
+        else:
+            what = f"gamma reached {float(gamma[k - 1]):.4g}"
+        self.reason = (f"loop {self.loop.name!r}: the logged true {what} at t = {float(t[k - 1]):.6g} s, outside the "
+                       f"bounds the law assumed ({assumed})")
+
+
+def reference_cover(loop) -> dict:
+    """Whether the law's phibar covers a tracked reference: phi of the error chain holds -ref^(r)
+    (z_r' = q^(r) - ref^(r)), so phibar must bound the plant's |phi| plus max |ref^(r)| over the run.
+    ``reference_r_max_abs``: max |ref^(r)| (chain units); ``phibar_covers_reference``: phibar >= the
+    true bound (the plant's, which includes it) when that is finite; false when phibar < max |ref^(r)|
+    alone; None when the plant's own bound is unknown (infinite) or the law assumes no phibar."""
+    need = float(loop.reference["max_abs"][loop.r])
+    phibar = loop.law_params.get("phibar")
+    if not _is_finite_number(phibar):
+        covers = None
+    elif phibar < need:
+        covers = False
+    else:
+        covers = bool(phibar >= loop.true_phibar) if _is_finite_number(loop.true_phibar) else None
+    return {"reference_r_max_abs": _num(need), "phibar_covers_reference": covers}
+
+
 def stage_reasons(stages: dict | None) -> list[str]:
     """Why the paper's guarantee does not cover a loop with these stages (LoopInfo.stages): the
     theorems assume the exact state and an actuator that delivers any u at once. [] when it does:
@@ -677,6 +736,7 @@ class _LoopStream:
         self.ext = None  # workspace extremes
         self.entry = self.v_min = self.v_max = None  # eps-ball: entry time, V1 min/max from it on
         self.n_saturated = 0.0
+        self.assumed = AssumedBounds(loop) if bound_applies(loop) else None  # only where a time bound is claimed
 
     def update(self, arrays: dict) -> None:
         a = {k: _finite_or_nan(v) for k, v in arrays.items()}
@@ -693,6 +753,8 @@ class _LoopStream:
         self.sq_sum.update(u * u)
         self.u_max = _nan_max(self.u_max, np.max(np.abs(u)))
         self.phi_hat_max = _nan_max(self.phi_hat_max, np.max(a["phi_hat"]))
+        if self.assumed is not None:
+            self.assumed.update(t, a["phi"], a["gamma"])
         ext = extremes(z, u)
         self.ext = ext if self.ext is None else np.array([np.fmin(self.ext[0], ext[0]), *np.fmax(self.ext[1:], ext[1:])])
         if self.entry is None:
@@ -759,6 +821,8 @@ class _LoopStream:
         # the true bounds only hold inside the workspace; the stages may break the theorems' assumptions
         if self.clamp and self.n_saturated:  # the plant's actuator clamped the law: its guarantee does not hold
             reasons = reasons + [f"the actuator's {self.clamp} clamped the law's u"]
+        if self.assumed is not None and self.assumed.reason:  # the plant's bounds did not hold along the run
+            reasons = reasons + [self.assumed.reason]
         applies = bound_applies(loop) and not left and not reasons
         u_win = fw.u[:fw.m]
         out.update({
@@ -815,6 +879,10 @@ class _LoopStream:
                 "chattering_applied": chattering(fw.u_applied[:fw.m], h),
                 "u_applied_max_abs": _num(self.u_applied_max),
             })
+        if loop.reference is not None:  # a tracked reference: its ref^(r) is part of phi
+            out.update(reference_cover(loop))
+        if reasons and "bound_applies_reason" not in out:
+            out["bound_applies_reason"] = "; ".join(reasons)
         return out
 
 

@@ -281,7 +281,8 @@ class ChainPlant(Plant):
             else:  # joint limits only, the workspace inside every one
                 self.notes.append(f"model {Path(model_name).name!r} has " + "; ".join(self.beyond) + ": simulated by "
                                   "MuJoCo; the workspace of the bounds lies inside every limit, so the computed bounds "
-                                  "hold while the run stays in it (metrics: workspace_left)")
+                                  "hold while every joint stays in it (metrics: workspace_left for the loops' joints, and the "
+                                  "logged true phi and gamma against the law's bounds: bound_applies_reason)")
         self.chain_loops = loops
         self.loop_names = tuple(L.name for L in loops)
         self.joint_ids = np.array([mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, L.joint) for L in loops])

@@ -26,7 +26,7 @@ from ftstab_mj.config import keypath
 from ftstab_mj.control import LAWS, law_class
 from ftstab_mj.control.law import COMPUTED
 from ftstab_mj.plants.disturbances import KEYS_BY_KIND, MAX_VALUE, Signal
-from ftstab_mj.plants.reference import KEYS_BY_KIND as REFERENCE_KEYS, Reference
+from ftstab_mj.plants.reference import KEYS_BY_KIND as REFERENCE_KEYS, Reference, read_samples
 from ftstab_mj.config.errors import ParameterError, ScenarioError, describe
 from ftstab_mj.simulation.records import MetricSettings
 from ftstab_mj.scenario.schema import (
@@ -65,6 +65,15 @@ class _Reader(Reader):
             if key != "kind" and key not in applies:
                 raise self.error(keypath.join(path, key), f"only keys that a {kind} reference uses ("
                                  + ", ".join(("kind",) + applies) + ")", f"{key} = {describe(value[key])}")
+        if kind == "file" and "times" not in value and "values" not in value:  # the samples from the file
+            if not isinstance(value.get("path"), str) or not value["path"]:
+                raise self.error(keypath.join(path, "path"), "the CSV file of samples t, value (relative to the scenario), "
+                                 "or times and values", describe(value.get("path")))
+            try:
+                times, values = read_samples(value["path"])
+            except ParameterError as exc:  # the file's name and line: a finding, shown whole
+                raise self.error(keypath.join(path, "path"), exc.allowed, exc.given) from None
+            value = {**value, "times": list(times), "values": list(values)}
         kw = self.fields_of(Reference, value, path)
         try:
             return Reference(**kw)
@@ -209,6 +218,10 @@ def _check(sc: Scenario, rd: _Reader) -> Scenario:
                            "that ends above 0)",
                            f"a signal reaching {lo:g}")
         _check_stages(lp, r, rd)
+        ref = lp.reference
+        if ref is not None and ref.kind == "file" and r > ref.smooth + 1:  # ref^(r) enters phi: bounded
+            raise rd.error(f"{p}.reference.smooth", f"an integer >= {r - 1} for this chain of length r = {r} "
+                           "(ref^(r) enters phi and must be bounded)", describe(ref.smooth))
         seeds = {role: _derived_seed(sc.seed, lp.name, role) for role in _SIGNAL_ROLES}
         lp = replace(lp, disturbance=replace(lp.disturbance, seed=seeds["disturbance"]),
                      gain=replace(lp.gain, seed=seeds["gain"]))
@@ -422,6 +435,12 @@ def resolve_relative_paths(raw: dict, base: Path) -> None:
     model = plant.get("model") if isinstance(plant, dict) else None
     if isinstance(model, str) and model.endswith(".xml") and not Path(model).is_absolute():
         plant["model"] = str((base / model).resolve())
+    loops = raw.get("loops")
+    for body in (loops.values() if isinstance(loops, dict) else ()):  # a file reference's samples
+        ref = body.get("reference") if isinstance(body, dict) else None
+        if isinstance(ref, dict) and ref.get("kind") == "file" and isinstance(ref.get("path"), str) \
+                and ref["path"] and not Path(ref["path"]).is_absolute():
+            ref["path"] = str((base / ref["path"]).resolve())
     plugins = raw.get("plugins")
     if isinstance(plugins, list):
         raw["plugins"] = [str((base / p).resolve()) if isinstance(p, str) and is_plugin_file(p) and not Path(p).is_absolute()

@@ -189,7 +189,7 @@ class LoopSpec:
         "actuator gain factor (cart: gamma in chain units; arm: dimensionless); default 1"))
     ref: float = field(default=0.0, metadata=meta("set point of the joint position (m or rad): z_1 = q - ref"))
     reference: Reference | None = field(default=None, metadata=meta(
-        "a reference to track instead of ref: kind constant | sine | polynomial | min_jerk; "
+        "a reference to track instead of ref: kind constant | sine | polynomial | min_jerk | file; "
         "z_i = q^(i-1) - ref^(i-1)(t)"))
     sensor: SensorSpec | None = field(default=None, metadata=meta("the sensor model; default: the exact z"))
     observer: ObserverSpec | None = field(default=None, metadata=meta("the observer; default: none"))

@@ -189,7 +189,7 @@ METRIC_UNITS = {
     "V1_min_after_entry": "chain", "V1_max_after_entry": "chain", "phi_hat_max": "u", "phi_hat_final": "u",
     "certificate": "", "clamp": "", "bound_applies_reason": "", "u_needed": "u", "estimation_error_max": "chain",
     "estimation_error_rms": "chain", "time_saturated": "s", "saturated_fraction": "", "chattering_applied": "u/s",
-    "u_applied_max_abs": "u",
+    "u_applied_max_abs": "u", "reference_r_max_abs": "chain", "phibar_covers_reference": "",
     # theorem 3 (true bounds)
     "Phibar": "u", "Delta": "chain", "phi_hat_limsup": "u", "V1_max_final": "chain", "Delta_held": "",
     "phi_hat_max_final": "u", "phi_hat_bound_held": "", "V1_min_final": "chain", "eps_reached": "",
