@@ -164,16 +164,29 @@ def bound_applies(loop) -> bool:
     Asked of the law (its ``time_bound`` and ``bound_holds``: the nominal law without disturbance and
     with gamma = 1, the robust law when the true bounds are within the assumed ones; the adaptive law
     never: Theorem 3 gives ultimate bounds, not a time). Never without a sound certificate (status
-    "certified": c_lower > 0), never for a law this process does not know.
+    "certified": c_lower > 0), never for a law this process does not know. :func:`bound_denied` says why not.
     """
+    return bound_denied(loop) is None
+
+
+def bound_denied(loop) -> str | None:
+    """Why Theorem 1's time bound is not a guarantee for this loop (one phrase), None when it is."""
     if not _is_finite_number(loop.true_phibar):
-        return False  # the plant's disturbance has no bound (e.g. a damped cart): nothing is guaranteed
-    if loop.hong and not loop_certificate(loop).certified:
-        return False  # no sound certificate (not certified, or undecided): no bound is claimed
+        return "the plant's disturbance has no known bound"  # e.g. a damped cart: nothing is guaranteed
     law = declared(loop.law)
-    if law is None or not law.time_bound:
-        return False
-    return bool(law.bound_holds(loop.law_params, loop.true_phibar, loop.true_gamma_m, loop.true_gamma_M))
+    if law is None:
+        return f"law {loop.law!r} is not known to this process"
+    if not law.time_bound:
+        return f"law {loop.law!r} claims no time bound"
+    if loop.hong and loop.hong.get("form", "full") == "simplified":
+        return ("the simplified form (Proposition 1 as printed) is homogeneous of degree k/(1+k), and its V1 "
+                "is not a Lyapunov function: the robust law on it has no proof")
+    if loop.hong and not loop_certificate(loop).certified:
+        return f"no sound certificate ({loop_certificate(loop).status})"
+    if not law.bound_holds(loop.law_params, loop.true_phibar, loop.true_gamma_m, loop.true_gamma_M):
+        return (f"the plant leaves the law's bounds (true |phi| <= {loop.true_phibar:.4g}, gamma in "
+                f"[{loop.true_gamma_m:.4g}, {loop.true_gamma_M:.4g}])")
+    return None
 
 
 def stage_reasons(stages: dict | None) -> list[str]:
@@ -759,7 +772,10 @@ class _LoopStream:
         # the true bounds only hold inside the workspace; the stages may break the theorems' assumptions
         if self.clamp and self.n_saturated:  # the plant's actuator clamped the law: its guarantee does not hold
             reasons = reasons + [f"the actuator's {self.clamp} clamped the law's u"]
-        applies = bound_applies(loop) and not left and not reasons
+        denied = bound_denied(loop)
+        applies = denied is None and not left and not reasons
+        why = "; ".join(([denied] if denied else []) + ([f"the plant left the workspace: {left}"] if left else [])
+                        + reasons) or None
         u_win = fw.u[:fw.m]
         out.update({
             "z0": [_num(x) for x in self.first["z"]],
@@ -772,6 +788,7 @@ class _LoopStream:
             "time_bound": tb,
             "workspace_left": left,
             "bound_applies": applies,
+            "bound_applies_reason": why,  # always a phrase when bound_applies is false
             "beat_bound": (bool(ts <= tb) if applies and ts is not None and tb is not None else None),
             "final_window_start": fw.start,
             "final_abs_z_max": [_num(x) for x in fw.z_max],  # final_abs_max, a running max
@@ -795,7 +812,6 @@ class _LoopStream:
         if stages is not None:  # the loop's sensor, observer, actuator (records.STAGE_FIELDS)
             t_sat = self.n_saturated * h  # saturated_time(u, stages, h)
             out.update({
-                "bound_applies_reason": "; ".join(reasons) if reasons else None,
                 "u_needed": stages["u_needed"],
                 # estimation_error(z_hat, z) of the window, reduced as it is read
                 "estimation_error_max": [_num(x) for x in fw.e_max],
@@ -809,7 +825,6 @@ class _LoopStream:
             t_sat = self.n_saturated * h
             out.update({
                 "clamp": self.clamp,
-                "bound_applies_reason": "; ".join(reasons) if reasons else None,
                 "time_saturated": _num(t_sat),
                 "saturated_fraction": _num(t_sat / (n * h)),
                 "chattering_applied": chattering(fw.u_applied[:fw.m], h),

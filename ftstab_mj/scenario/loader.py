@@ -24,7 +24,7 @@ import numpy as np
 
 from ftstab_mj.config import keypath
 from ftstab_mj.control import LAWS, law_class
-from ftstab_mj.control.law import COMPUTED
+from ftstab_mj.control.law import COMPUTED, Law
 from ftstab_mj.plants.disturbances import KEYS_BY_KIND, MAX_VALUE, Signal
 from ftstab_mj.plants.reference import KEYS_BY_KIND as REFERENCE_KEYS, Reference
 from ftstab_mj.config.errors import ParameterError, ScenarioError, describe
@@ -253,6 +253,12 @@ def _check_stages(lp: LoopSpec, r: int, rd: _Reader) -> None:
     order = r - 1 if obs.order is None else obs.order
     if order < r - 1:
         raise rd.error(f"{p}.observer.order", f"an order >= r - 1 = {r - 1}", describe(obs.order))
+    law = lp.controller if isinstance(lp.controller, Law) else law_class(lp.controller.law)
+    lagged = lp.actuator is not None and lp.actuator.tau > 0  # a lag makes the applied u continuous
+    if order > r - 1 and not law.u_continuous and not lagged:
+        # z_1^(r) = phi + gamma u jumps with a discontinuous u: no L bounds z_1^(n+1) (Levant 2003)
+        raise rd.error(f"{p}.observer.order", f"order = r - 1 = {r - 1}: law {law.name!r} declares a discontinuous u, so "
+                       f"z_1^({r}) jumps and no L bounds z_1^(n+1) (an actuator lag, tau > 0, would smooth it)", describe(obs.order))
     if obs.kind == "levant" and obs.filter_order is not None:
         raise rd.error(f"{p}.observer.filter_order", 'no filter_order for kind = "levant" (only "levant_filtering")',
                        describe(obs.filter_order))

@@ -96,6 +96,7 @@ class NominalLaw(_HongLaw):
     summary = "Hong's homogeneous controller alone, u = u0 (the paper, Theorem 1)"
     native_code = 0
     time_bound = u_bound_from_V1 = True
+    u_continuous = True  # u0 is continuous (Hong 2002)
     hong: HongController
 
     @classmethod

@@ -1,0 +1,58 @@
+"""Output feedback by design (issue 42): the differentiator's L from the plant's bounds and the
+saturation, the refusal of an order n > r - 1 under a discontinuous law, and why the theorems' time
+bound does not apply, always said."""
+
+import pytest
+
+from ftstab_mj import api
+from ftstab_mj.config.errors import ScenarioError
+from ftstab_mj.simulation.stages.differentiator import lipschitz_rule
+
+
+def test_rule_is_the_sup_of_the_chain_derivative_over_the_reachable_set():
+    # r = 3 cart: |x'''| = |phi + gamma u| <= 0.8 + 1.4 * 10 with |u| <= 10 (not 26 = 0.8 + 1.4 * 18)
+    assert lipschitz_rule(3, 2, 0.8, 1.4, 10.0) == pytest.approx(14.8)
+    assert lipschitz_rule(3, 2, 0.8, 1.4, None) is None  # no saturation: no bound over the reachable set
+    assert lipschitz_rule(3, 3, 0.8, 1.4, 10.0) is None  # n > r - 1 needs phi' and u'
+
+
+def test_shipped_r3_output_feedback_uses_the_rule():
+    sc = api.load_scenario("cart_r3_output_feedback")
+    lp = sc.loops[0]
+    lo, hi = lp.gain.bounds()
+    assert lp.observer.L == pytest.approx(lipschitz_rule(3, lp.observer.order, lp.disturbance.amplitude, hi,
+                                                         lp.actuator.u_max))
+
+
+@pytest.mark.parametrize("noise", [1e-3, 3e-3, 1e-2])
+def test_r3_output_feedback_survives_position_noise(noise):
+    # before the saturation and the rule's L, 3 mm of noise drove |x| past 1e3 at t ~ 5.5 s
+    res = api.run("cart_r3_output_feedback", overrides=[f"loops.cart.sensor.noise={noise}"], keep_samples=False)
+    assert res.status == "completed"
+    assert res.metrics["loops"]["cart"]["final_abs_z_max"][0] < 0.1  # m
+
+
+def test_discontinuous_law_refuses_a_differentiator_of_order_above_r_minus_1():
+    with pytest.raises(ScenarioError, match="discontinuous u"):
+        api.load_scenario("cart_r2_output_feedback", ["loops.cart.observer.order=2"])
+    # an actuator lag makes the applied u continuous: z_1^(r+1) is then bounded
+    sc = api.load_scenario("cart_r2_output_feedback", ["loops.cart.observer.order=2", "loops.cart.actuator.tau=0.01"])
+    assert sc.loops[0].observer.order == 2
+
+
+@pytest.mark.parametrize("scenario, overrides, phrase", [
+    ("cart_r2_robust", ["loops.cart.disturbance.amplitude=1.5"], "leaves the law's bounds"),
+    ("cart_r2_above_bound_robust", [], "leaves the law's bounds"),
+    ("cart_r2_adaptive", [], "claims no time bound"),
+    ("cart_r2_robust", ['loops.cart.controller.form="simplified"'], "no proof"),
+    ("cart_r2_robust", ["loops.cart.actuator.tau=0.01"], "actuator lag"),
+])
+def test_bound_applies_reason_is_set_whenever_bound_applies_is_false(scenario, overrides, phrase):
+    m = api.run(scenario, overrides=overrides + ["sim.duration=0.2"], keep_samples=False).metrics["loops"]["cart"]
+    assert m["bound_applies"] is False
+    assert phrase in m["bound_applies_reason"]
+
+
+def test_bound_applies_reason_is_none_when_the_bound_applies():
+    m = api.run("cart_r2_robust", overrides=["sim.duration=0.2"], keep_samples=False).metrics["loops"]["cart"]
+    assert m["bound_applies"] is True and m["bound_applies_reason"] is None
