@@ -56,3 +56,14 @@ def test_bound_applies_reason_is_set_whenever_bound_applies_is_false(scenario, o
 def test_bound_applies_reason_is_none_when_the_bound_applies():
     m = api.run("cart_r2_robust", overrides=["sim.duration=0.2"], keep_samples=False).metrics["loops"]["cart"]
     assert m["bound_applies"] is True and m["bound_applies_reason"] is None
+
+
+def test_metric_records_when_the_run_broke_the_differentiators_assumption():
+    # with the saturation |x'''| <= 14.8 = L by construction (sampled means stay below it); without it,
+    # 3 mm of noise drives the robust law's u, and |x'''|, far past L most of the time
+    held = api.run("cart_r3_output_feedback", overrides=["sim.duration=2"], keep_samples=False).metrics["loops"]["cart"]
+    assert held["observer_L"] == 14.8
+    assert held["observer_L_exceeded_ratio"] <= 1.0 and held["observer_L_exceeded_fraction"] == 0.0
+    broke = api.run("cart_r3_output_feedback", overrides=["loops.cart.sensor.noise=3e-3", "loops.cart.actuator.u_max=1e9"],
+                    keep_samples=False).metrics["loops"]["cart"]
+    assert broke["observer_L_exceeded_ratio"] > 10 and broke["observer_L_exceeded_fraction"] > 0.5

@@ -661,6 +661,35 @@ class _FinalWindow:
         self.m = m + k
 
 
+class _LipschitzTracker:
+    """How often the run broke the differentiator's assumption |z_1^(n+1)| <= L (Levant 2003).
+
+    z_1^(n+1) is the (n + 2 - r)-th finite difference of the true z_r over the control period h
+    (z_r' = z_1^(r)), divided by h^(n + 2 - r): the mean over a period, so a lower estimate of the sup.
+    Kept across batches: the last n + 2 - r samples of z_r."""
+
+    def __init__(self, r: int, order: int, L: float, h: float):
+        self.q, self.L, self.h = order + 2 - r, L, h
+        self.carry = np.empty(0)
+        self.n = self.above = 0
+        self.max = 0.0
+
+    def update(self, zr) -> None:
+        x = np.concatenate([self.carry, zr])
+        if len(x) > self.q:
+            d = np.abs(np.diff(x, n=self.q)) / self.h ** self.q
+            self.n += len(d)
+            self.above += int(np.count_nonzero(d > self.L))
+            self.max = max(self.max, float(np.nanmax(d)))
+        self.carry = x[-self.q:].copy()
+
+    def result(self) -> dict:
+        return {"observer_L": self.L,
+                "observer_derivative_max": _num(self.max),  # max sampled |z_1^(n+1)|, chain units
+                "observer_L_exceeded_ratio": _num(self.max / self.L),  # > 1: the assumption broke
+                "observer_L_exceeded_fraction": _num(self.above / self.n) if self.n else None}
+
+
 class _LoopStream:
     """The metrics of one loop from its batches ({field: array}, as logged); see :func:`loop_metrics`.
 
@@ -690,6 +719,8 @@ class _LoopStream:
         self.ext = None  # workspace extremes
         self.entry = self.v_min = self.v_max = None  # eps-ball: entry time, V1 min/max from it on
         self.n_saturated = 0.0
+        obs = self.stages["observer"] if self.stages is not None else None
+        self.lipschitz = None if obs is None else _LipschitzTracker(loop.r, obs["order"], obs["L"], info.period)
 
     def update(self, arrays: dict) -> None:
         a = {k: _finite_or_nan(v) for k, v in arrays.items()}
@@ -721,6 +752,8 @@ class _LoopStream:
             self.n_saturated += saturated_time(u, self.stages, 1.0)  # a count: exact
             self.u_applied_max = _nan_max(self.u_applied_max, np.max(np.abs(a["u_applied"])))
             cols += [a["z_hat"], a["u_applied"][:, None]]
+            if self.lipschitz is not None:
+                self.lipschitz.update(z[:, -1])
         elif self.clamp:
             self.n_saturated += float(np.count_nonzero(a["u_applied"] != u))
             self.u_applied_max = _nan_max(self.u_applied_max, np.max(np.abs(a["u_applied"])))
@@ -821,6 +854,8 @@ class _LoopStream:
                 "chattering_applied": chattering(fw.u_applied[:fw.m], h),
                 "u_applied_max_abs": _num(self.u_applied_max),
             })
+            if self.lipschitz is not None:
+                out.update(self.lipschitz.result())
         elif self.clamp:  # the plant's actuator clamps: u_max_abs, chattering are the law's u; these what it applied
             t_sat = self.n_saturated * h
             out.update({
