@@ -2,6 +2,9 @@
 saturation, the refusal of an order n > r - 1 under a discontinuous law, and why the theorems' time
 bound does not apply, always said."""
 
+from types import SimpleNamespace
+
+import numpy as np
 import pytest
 
 from ftstab_mj import api
@@ -67,3 +70,19 @@ def test_metric_records_when_the_run_broke_the_differentiators_assumption():
     broke = api.run("cart_r3_output_feedback", overrides=["loops.cart.sensor.noise=3e-3", "loops.cart.actuator.u_max=1e9"],
                     keep_samples=False).metrics["loops"]["cart"]
     assert broke["observer_L_exceeded_ratio"] > 10 and broke["observer_L_exceeded_fraction"] > 0.5
+
+
+def test_simplified_form_is_labelled_without_proof():
+    from ftstab_mj.control.hong import HongController
+    from ftstab_mj.metrics.run_metrics import v1_label
+
+    # Proposition 1 as printed is homogeneous of degree k/(1+k) with weights (1 + i k)/(1 + k): scaling
+    # z_i by lam^w_i scales u by lam^(w_r + d); an identity checked on a random state
+    r, k, lam = 3, -0.1, 1.7
+    ctl = HongController(r, k, (1.0, 1.7, 5.0), form="simplified")
+    w = np.array([(1 + i * k) / (1 + k) for i in range(1, r + 2)])
+    z = np.array([0.3, -0.2, 0.5])
+    u0 = ctl.evaluate(z)[0]
+    assert ctl.evaluate(lam ** w[:r] * z)[0] == pytest.approx(lam ** w[r] * u0, rel=1e-12)
+    assert "not a Lyapunov function" in v1_label(SimpleNamespace(hong={"form": "simplified"}))
+    assert v1_label(SimpleNamespace(hong={"form": "full"})) == "V1"

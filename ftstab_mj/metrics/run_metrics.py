@@ -169,6 +169,15 @@ def bound_applies(loop) -> bool:
     return bound_denied(loop) is None
 
 
+def v1_label(loop, name: str = "V1") -> str:
+    """The label of a loop's V1 curve in the report and the viewers: on the simplified form (Proposition 1
+    as printed, homogeneous of degree k/(1+k) with weights (1+ik)/(1+k)) V1 is not a Lyapunov function,
+    and a law built on it has no proof; the label says so."""
+    if loop.hong and loop.hong.get("form", "full") == "simplified":
+        return f"{name} (simplified form: not a Lyapunov function, no proof)"
+    return name
+
+
 def bound_denied(loop) -> str | None:
     """Why Theorem 1's time bound is not a guarantee for this loop (one phrase), None when it is."""
     if not _is_finite_number(loop.true_phibar):
