@@ -67,7 +67,8 @@ def test_metric_records_when_the_run_broke_the_differentiators_assumption():
     held = api.run("cart_r3_output_feedback", overrides=["sim.duration=2"], keep_samples=False).metrics["loops"]["cart"]
     assert held["observer_L"] == 14.8
     assert held["observer_L_exceeded_ratio"] <= 1.0 and held["observer_L_exceeded_fraction"] == 0.0
-    broke = api.run("cart_r3_output_feedback", overrides=["loops.cart.sensor.noise=3e-3", "loops.cart.actuator.u_max=1e9"],
+    broke = api.run("cart_r3_output_feedback", overrides=["loops.cart.sensor.noise=3e-3", "loops.cart.actuator.u_max=1e9",
+                                                               "loops.cart.observer.L=14.8"],
                     keep_samples=False).metrics["loops"]["cart"]
     assert broke["observer_L_exceeded_ratio"] > 10 and broke["observer_L_exceeded_fraction"] > 0.5
 
@@ -104,3 +105,10 @@ def test_r3_output_feedback_accuracy_follows_levants_noise_exponents():
                             keep_samples=False).metrics["loops"]["cart"]["final_abs_z_max"] for e in eps])
     slopes = [np.polyfit(np.log(eps), np.log(acc[:, i]), 1)[0] for i in range(3)]
     assert all(abs(s - t) < 0.1 for s, t in zip(slopes, (1.0, 2 / 3, 1 / 3))), slopes
+
+
+def test_observer_L_computed_takes_the_rule_and_needs_a_saturation():
+    sc = api.load_scenario("cart_r2_output_feedback", ['loops.cart.observer.L="computed"', "loops.cart.actuator.u_max=3"])
+    assert sc.loops[0].observer.L == pytest.approx(0.8 + 1.4 * 3)  # the r = 2 cart's true phibar, gamma_M
+    with pytest.raises(ScenarioError, match="observer.L: expected a number, or \"computed\" with order r - 1"):
+        api.load_scenario("cart_r2_output_feedback", ['loops.cart.observer.L="computed"'])

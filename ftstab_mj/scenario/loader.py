@@ -216,6 +216,7 @@ def _check(sc: Scenario, rd: _Reader) -> Scenario:
             lp = replace(lp, sensor=replace(lp.sensor, seed=seeds["sensor"]))
         loops.append(lp)
     sc = _computed_bounds(replace(sc, loops=tuple(loops)), plant, rd)
+    sc = _computed_observer_L(sc, plant, rd)
     for lp in sc.loops:  # the law's own validation (after "computed" is resolved), e.g. Hong's k and gains
         try:
             lp.controller.build(r)
@@ -341,6 +342,35 @@ def _computed_bounds(sc: Scenario, plant, rd: _Reader) -> Scenario:
                            "a number, since this plant's bound is infinite (a damped cart: damping adds -b x'/m to "
                            "phi, unbounded without a speed limit; or signals beyond float range)", f'"{COMPUTED}" with {why}')
         loops[i] = replace(loops[i], controller=loops[i].controller.with_values(**{name: value[(loops[i].name, bound)]}))
+    return replace(sc, loops=tuple(loops))
+
+
+def _computed_observer_L(sc: Scenario, plant, rd: _Reader) -> Scenario:
+    """Replace an observer's L = "computed" by the rule (differentiator.lipschitz_rule): the sup of
+    |z_1^(r)| = |phi + gamma u_applied| over the reachable set, from the plant's true bounds for the
+    scenario's signals and the actuator's saturation."""
+    from ftstab_mj.simulation.stages.differentiator import lipschitz_rule
+
+    if not any(lp.observer is not None and lp.observer.L == COMPUTED for lp in sc.loops):
+        return sc
+    by_name = {lp.name: lp for lp in sc.loops}
+    ordered = [by_name[n] for n in plant.loop_names]
+    phibar, _, gamma_M = plant.true_bounds([lp.disturbance.bounds() for lp in ordered],
+                                           [lp.gain.bounds() for lp in ordered])
+    k_of = {n: k for k, n in enumerate(plant.loop_names)}
+    loops = list(sc.loops)
+    for i, lp in enumerate(loops):
+        if lp.observer is None or lp.observer.L != COMPUTED:
+            continue
+        r, k = plant.r, k_of[lp.name]
+        order = r - 1 if lp.observer.order is None else lp.observer.order
+        u_max = None if lp.actuator is None else lp.actuator.u_max
+        L = lipschitz_rule(r, order, float(phibar[k]), float(gamma_M[k]), u_max)
+        if L is None or not math.isfinite(L) or L <= 0:
+            raise rd.error(f"loops.{lp.name}.observer.L", "a number, or \"computed\" with order r - 1 = "
+                           f"{r - 1}, an actuator.u_max and bounded signals (the rule phibar + gamma_M u_max)",
+                           f'"{COMPUTED}" with order {order}, u_max {u_max}')
+        loops[i] = replace(lp, observer=replace(lp.observer, L=L))
     return replace(sc, loops=tuple(loops))
 
 
