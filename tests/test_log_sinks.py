@@ -367,5 +367,5 @@ def test_rerun_names_the_envelope_what_the_report_calls_it(robust_rrd, tmp_path)
     write_run(RerunSink(tmp_path / "exceeded.rrd"), info, loops, pos, quat, COMPLETED, metrics, batch=600)
     series, note = _envelope_names(tmp_path / "exceeded.rrd")
     kind = envelope_kind(metrics["loops"]["cart"])
-    assert kind == "not a guarantee: the true bounds exceed the assumed ones"
+    assert kind == "not a guarantee: the plant leaves the law's bounds (true |phi| <= 0.5, gamma in [1, 1])"
     assert series == f"log10 Theorem 1 envelope ({kind})" and note.endswith(f" s ({kind})")

@@ -7,8 +7,10 @@ Two forms:
 
 * ``"full"``: the paper's eq. (Hongfunction) with the beta_i of Hong, whose V1 (eq. Lyap-Hong)
   is homogeneous of degree ``2 + k`` with weights ``p_i = 1 + (i-1) k``. Admissible ``-1/r < k <= 0``.
-* ``"simplified"``: Proposition 1 (all beta_i = 1), exponents as printed; admissible
-  ``-1/(r+1) < k <= 0``. Its companion ``V1 = sum (z_j - v_{j-1})^2 / 2`` is not homogeneous.
+* ``"simplified"``: Proposition 1 (all beta_i = 1), exponents as printed: homogeneous of degree
+  ``k/(1+k)`` with weights ``(1 + i k)/(1 + k)`` (not degree k); admissible ``-1/(r+1) < k <= 0``.
+  Its companion ``V1 = sum (z_j - v_{j-1})^2 / 2`` is not homogeneous and not a Lyapunov function:
+  a law built on this form has no proof.
 
 ``k = 0`` is accepted in both forms: it is the linear backstepping law (the tests use it).
 """

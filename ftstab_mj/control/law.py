@@ -96,6 +96,11 @@ class Law:
     # u_bound_from_V1: u = gamma_hat u0 + phi_hat sign(u0) with constant gamma_hat, phi_hat, and V1 does not
     # grow along the guaranteed solution, so sup |u| over {V1 <= V1(z0)} bounds what the law asks for.
     u_bound_from_V1: ClassVar[bool] = False
+    # u_continuous: u is a continuous function of (z, the law's state) everywhere, so z_1^(r) = phi + gamma u
+    # does not jump and a differentiator of order n > r - 1 may assume a bound on z_1^(n+1). False for any
+    # law with a sign or a relay (even only at the origin, as the quasi-continuous law): the scenario loader
+    # then refuses an observer of order n > r - 1 (Levant 2003: |f^(n+1)| <= L must hold).
+    u_continuous: ClassVar[bool] = False
 
     r: int  # chain length the law controls
 

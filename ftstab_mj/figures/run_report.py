@@ -137,13 +137,13 @@ def _varies(a: np.ndarray) -> bool:
 
 def _v1_panel(lp, m: dict, a: dict, t: np.ndarray, settle_level: float) -> Panel | None:
     """log V1 with the settle level, Theorem 1's envelope and T(z0), or Theorem 3's Delta and eps."""
-    from ftstab_mj.metrics.run_metrics import envelope, envelope_kind, loop_certificate
+    from ftstab_mj.metrics.run_metrics import envelope, envelope_kind, loop_certificate, v1_label
 
     V1 = a["V1"]
     if not np.isfinite(V1).any():
         return None  # a law without a Lyapunov function (Levant's, super-twisting) logs V1 as NaN
     t0, t_end = float(t[0]), float(t[-1])
-    curves = [Curve("V1", t, V1, color="C0"),
+    curves = [Curve(v1_label(lp), t, V1, color="C0"),
               Curve(f"settle level {settle_level:g}", np.empty(0), np.array([settle_level]), "hline", ":", "0.4")]
     law = declared(lp.law)
     if law is not None and law.time_bound and m.get("time_bound") is not None:

@@ -9,7 +9,9 @@ CERTIFICATE_DERIVED: the time bound and what derives from it):
 - a log whose certificate another version of the branch and bound computed
   (run_metrics.certificate_moved: both brackets hold c): the certificate and what derives from it.
 
-A metric the recording version did not compute yet (an older log) is not a difference either.
+A metric the recording version did not compute yet (an older log) is not a difference either; nor is
+``bound_applies_reason`` recorded null (older versions left it so when the law or the plant denied the
+bound) or recomputed for a law this process does not know (a plugin not loaded: it can only say so).
 """
 
 from __future__ import annotations
@@ -35,7 +37,12 @@ def compare_recorded(recorded: dict, metrics: dict) -> MetricsComparison:
     from ftstab_mj.metrics.run_metrics import CERTIFICATE_DERIVED, certificate_moved
 
     rec, now = flatten(recorded), flatten(metrics)
+    from ftstab_mj.control.law import declared
+
     changed = [k for k in sorted(rec) if rec.get(k) != now.get(k)]  # keys new since the recording: not compared
+    unknown = {name for name, m in recorded.get("loops", {}).items() if declared(m.get("law")) is None}
+    changed = [k for k in changed if not (k.endswith(".bound_applies_reason") and k.startswith("loops.")
+                                          and (rec.get(k) is None or k.split(".")[1] in unknown))]
     loops_rec, loops_now = recorded.get("loops", {}), metrics.get("loops", {})
 
     def in_loops(k, names, fields):

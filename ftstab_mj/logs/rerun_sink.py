@@ -40,7 +40,7 @@ from ftstab_mj.config.errors import LogWriteError
 from ftstab_mj.control.law import declared
 from ftstab_mj.logs.files import Pump, can_pump, create_log, discard, write_errors
 from ftstab_mj.logs.scene import PLANE_HALF_THICKNESS, model_shapes, quat_rotate
-from ftstab_mj.metrics.run_metrics import bound_applies, envelope, envelope_kind, loop_certificate, stage_reasons, time_bound
+from ftstab_mj.metrics.run_metrics import bound_applies, envelope, envelope_kind, loop_certificate, stage_reasons, time_bound, v1_label
 from ftstab_mj.simulation.records import RunInfo, SampleBatch, format_table
 
 TIMELINE = "sim_time"
@@ -230,7 +230,7 @@ class RerunSink:
         import rerun as rr
 
         rec, base = self._rec, f"/loop/{lp.name}"
-        for name, label in (("log10_V1", "log10 V1"), ("settle_level", "log10 settle level")):
+        for name, label in (("log10_V1", v1_label(lp, "log10 V1")), ("settle_level", "log10 settle level")):
             rec.log(f"{base}/V1/{name}", rr.SeriesLines(names=label, colors=V1_COLOURS[name],
                                                         aggregation_policy="MinMax"), static=True)
         rec.log(f"{base}/V1/T_z0", rr.SeriesPoints(names="T(z0)", colors=V1_COLOURS["T_z0"], markers="Cross",

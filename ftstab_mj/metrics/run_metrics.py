@@ -164,16 +164,38 @@ def bound_applies(loop) -> bool:
     Asked of the law (its ``time_bound`` and ``bound_holds``: the nominal law without disturbance and
     with gamma = 1, the robust law when the true bounds are within the assumed ones; the adaptive law
     never: Theorem 3 gives ultimate bounds, not a time). Never without a sound certificate (status
-    "certified": c_lower > 0), never for a law this process does not know.
+    "certified": c_lower > 0), never for a law this process does not know. :func:`bound_denied` says why not.
     """
+    return bound_denied(loop) is None
+
+
+def v1_label(loop, name: str = "V1") -> str:
+    """The label of a loop's V1 curve in the report and the viewers: on the simplified form (Proposition 1
+    as printed, homogeneous of degree k/(1+k) with weights (1+ik)/(1+k)) V1 is not a Lyapunov function,
+    and a law built on it has no proof; the label says so."""
+    if loop.hong and loop.hong.get("form", "full") == "simplified":
+        return f"{name} (simplified form: not a Lyapunov function, no proof)"
+    return name
+
+
+def bound_denied(loop) -> str | None:
+    """Why Theorem 1's time bound is not a guarantee for this loop (one phrase), None when it is."""
     if not _is_finite_number(loop.true_phibar):
-        return False  # the plant's disturbance has no bound (e.g. a damped cart): nothing is guaranteed
-    if loop.hong and not loop_certificate(loop).certified:
-        return False  # no sound certificate (not certified, or undecided): no bound is claimed
+        return "the plant's disturbance has no known bound"  # e.g. a damped cart: nothing is guaranteed
     law = declared(loop.law)
-    if law is None or not law.time_bound:
-        return False
-    return bool(law.bound_holds(loop.law_params, loop.true_phibar, loop.true_gamma_m, loop.true_gamma_M))
+    if law is None:
+        return f"law {loop.law!r} is not known to this process"
+    if not law.time_bound:
+        return f"law {loop.law!r} claims no time bound"
+    if loop.hong and loop.hong.get("form", "full") == "simplified":
+        return ("the simplified form (Proposition 1 as printed) is homogeneous of degree k/(1+k), and its V1 "
+                "is not a Lyapunov function: the robust law on it has no proof")
+    if loop.hong and not loop_certificate(loop).certified:
+        return f"no sound certificate ({loop_certificate(loop).status})"
+    if not law.bound_holds(loop.law_params, loop.true_phibar, loop.true_gamma_m, loop.true_gamma_M):
+        return (f"the plant leaves the law's bounds (true |phi| <= {loop.true_phibar:.4g}, gamma in "
+                f"[{loop.true_gamma_m:.4g}, {loop.true_gamma_M:.4g}])")
+    return None
 
 
 class AssumedBounds:
@@ -707,6 +729,35 @@ class _FinalWindow:
         self.m = m + k
 
 
+class _LipschitzTracker:
+    """How often the run broke the differentiator's assumption |z_1^(n+1)| <= L (Levant 2003).
+
+    z_1^(n+1) is the (n + 2 - r)-th finite difference of the true z_r over the control period h
+    (z_r' = z_1^(r)), divided by h^(n + 2 - r): the mean over a period, so a lower estimate of the sup.
+    Kept across batches: the last n + 2 - r samples of z_r."""
+
+    def __init__(self, r: int, order: int, L: float, h: float):
+        self.q, self.L, self.h = order + 2 - r, L, h
+        self.carry = np.empty(0)
+        self.n = self.above = 0
+        self.max = 0.0
+
+    def update(self, zr) -> None:
+        x = np.concatenate([self.carry, zr])
+        if len(x) > self.q:
+            d = np.abs(np.diff(x, n=self.q)) / self.h ** self.q
+            self.n += len(d)
+            self.above += int(np.count_nonzero(d > self.L))
+            self.max = max(self.max, float(np.nanmax(d)))
+        self.carry = x[-self.q:].copy()
+
+    def result(self) -> dict:
+        return {"observer_L": self.L,
+                "observer_derivative_max": _num(self.max),  # max sampled |z_1^(n+1)|, chain units
+                "observer_L_exceeded_ratio": _num(self.max / self.L),  # > 1: the assumption broke
+                "observer_L_exceeded_fraction": _num(self.above / self.n) if self.n else None}
+
+
 class _LoopStream:
     """The metrics of one loop from its batches ({field: array}, as logged); see :func:`loop_metrics`.
 
@@ -737,6 +788,8 @@ class _LoopStream:
         self.entry = self.v_min = self.v_max = None  # eps-ball: entry time, V1 min/max from it on
         self.n_saturated = 0.0
         self.assumed = AssumedBounds(loop) if bound_applies(loop) else None  # only where a time bound is claimed
+        obs = self.stages["observer"] if self.stages is not None else None
+        self.lipschitz = None if obs is None else _LipschitzTracker(loop.r, obs["order"], obs["L"], info.period)
 
     def update(self, arrays: dict) -> None:
         a = {k: _finite_or_nan(v) for k, v in arrays.items()}
@@ -770,6 +823,8 @@ class _LoopStream:
             self.n_saturated += saturated_time(u, self.stages, 1.0)  # a count: exact
             self.u_applied_max = _nan_max(self.u_applied_max, np.max(np.abs(a["u_applied"])))
             cols += [a["z_hat"], a["u_applied"][:, None]]
+            if self.lipschitz is not None:
+                self.lipschitz.update(z[:, -1])
         elif self.clamp:
             self.n_saturated += float(np.count_nonzero(a["u_applied"] != u))
             self.u_applied_max = _nan_max(self.u_applied_max, np.max(np.abs(a["u_applied"])))
@@ -823,7 +878,10 @@ class _LoopStream:
             reasons = reasons + [f"the actuator's {self.clamp} clamped the law's u"]
         if self.assumed is not None and self.assumed.reason:  # the plant's bounds did not hold along the run
             reasons = reasons + [self.assumed.reason]
-        applies = bound_applies(loop) and not left and not reasons
+        denied = bound_denied(loop)
+        applies = denied is None and not left and not reasons
+        why = "; ".join(([denied] if denied else []) + ([f"the plant left the workspace: {left}"] if left else [])
+                        + reasons) or None
         u_win = fw.u[:fw.m]
         out.update({
             "z0": [_num(x) for x in self.first["z"]],
@@ -836,6 +894,7 @@ class _LoopStream:
             "time_bound": tb,
             "workspace_left": left,
             "bound_applies": applies,
+            "bound_applies_reason": why,  # always a phrase when bound_applies is false
             "beat_bound": (bool(ts <= tb) if applies and ts is not None and tb is not None else None),
             "final_window_start": fw.start,
             "final_abs_z_max": [_num(x) for x in fw.z_max],  # final_abs_max, a running max
@@ -859,7 +918,6 @@ class _LoopStream:
         if stages is not None:  # the loop's sensor, observer, actuator (records.STAGE_FIELDS)
             t_sat = self.n_saturated * h  # saturated_time(u, stages, h)
             out.update({
-                "bound_applies_reason": "; ".join(reasons) if reasons else None,
                 "u_needed": stages["u_needed"],
                 # estimation_error(z_hat, z) of the window, reduced as it is read
                 "estimation_error_max": [_num(x) for x in fw.e_max],
@@ -869,11 +927,12 @@ class _LoopStream:
                 "chattering_applied": chattering(fw.u_applied[:fw.m], h),
                 "u_applied_max_abs": _num(self.u_applied_max),
             })
+            if self.lipschitz is not None:
+                out.update(self.lipschitz.result())
         elif self.clamp:  # the plant's actuator clamps: u_max_abs, chattering are the law's u; these what it applied
             t_sat = self.n_saturated * h
             out.update({
                 "clamp": self.clamp,
-                "bound_applies_reason": "; ".join(reasons) if reasons else None,
                 "time_saturated": _num(t_sat),
                 "saturated_fraction": _num(t_sat / (n * h)),
                 "chattering_applied": chattering(fw.u_applied[:fw.m], h),

@@ -24,7 +24,7 @@ import numpy as np
 
 from ftstab_mj.config import keypath
 from ftstab_mj.control import LAWS, law_class
-from ftstab_mj.control.law import COMPUTED
+from ftstab_mj.control.law import COMPUTED, Law
 from ftstab_mj.plants.disturbances import KEYS_BY_KIND, MAX_VALUE, Signal
 from ftstab_mj.plants.reference import KEYS_BY_KIND as REFERENCE_KEYS, Reference, read_samples
 from ftstab_mj.config.errors import ParameterError, ScenarioError, describe
@@ -229,6 +229,7 @@ def _check(sc: Scenario, rd: _Reader) -> Scenario:
             lp = replace(lp, sensor=replace(lp.sensor, seed=seeds["sensor"]))
         loops.append(lp)
     sc = _computed_bounds(replace(sc, loops=tuple(loops)), plant, rd)
+    sc = _computed_observer_L(sc, plant, rd)
     for lp in sc.loops:  # the law's own validation (after "computed" is resolved), e.g. Hong's k and gains
         try:
             lp.controller.build(r)
@@ -266,6 +267,12 @@ def _check_stages(lp: LoopSpec, r: int, rd: _Reader) -> None:
     order = r - 1 if obs.order is None else obs.order
     if order < r - 1:
         raise rd.error(f"{p}.observer.order", f"an order >= r - 1 = {r - 1}", describe(obs.order))
+    law = lp.controller if isinstance(lp.controller, Law) else law_class(lp.controller.law)
+    lagged = lp.actuator is not None and lp.actuator.tau > 0  # a lag makes the applied u continuous
+    if order > r - 1 and not law.u_continuous and not lagged:
+        # z_1^(r) = phi + gamma u jumps with a discontinuous u: no L bounds z_1^(n+1) (Levant 2003)
+        raise rd.error(f"{p}.observer.order", f"order = r - 1 = {r - 1}: law {law.name!r} declares a discontinuous u, so "
+                       f"z_1^({r}) jumps and no L bounds z_1^(n+1) (an actuator lag, tau > 0, would smooth it)", describe(obs.order))
     if obs.kind == "levant" and obs.filter_order is not None:
         raise rd.error(f"{p}.observer.filter_order", 'no filter_order for kind = "levant" (only "levant_filtering")',
                        describe(obs.filter_order))
@@ -348,6 +355,35 @@ def _computed_bounds(sc: Scenario, plant, rd: _Reader) -> Scenario:
                            "a number, since this plant's bound is infinite (a damped cart: damping adds -b x'/m to "
                            "phi, unbounded without a speed limit; or signals beyond float range)", f'"{COMPUTED}" with {why}')
         loops[i] = replace(loops[i], controller=loops[i].controller.with_values(**{name: value[(loops[i].name, bound)]}))
+    return replace(sc, loops=tuple(loops))
+
+
+def _computed_observer_L(sc: Scenario, plant, rd: _Reader) -> Scenario:
+    """Replace an observer's L = "computed" by the rule (differentiator.lipschitz_rule): the sup of
+    |z_1^(r)| = |phi + gamma u_applied| over the reachable set, from the plant's true bounds for the
+    scenario's signals and the actuator's saturation."""
+    from ftstab_mj.simulation.stages.differentiator import lipschitz_rule
+
+    if not any(lp.observer is not None and lp.observer.L == COMPUTED for lp in sc.loops):
+        return sc
+    by_name = {lp.name: lp for lp in sc.loops}
+    ordered = [by_name[n] for n in plant.loop_names]
+    phibar, _, gamma_M = plant.true_bounds([lp.disturbance.bounds() for lp in ordered],
+                                           [lp.gain.bounds() for lp in ordered])
+    k_of = {n: k for k, n in enumerate(plant.loop_names)}
+    loops = list(sc.loops)
+    for i, lp in enumerate(loops):
+        if lp.observer is None or lp.observer.L != COMPUTED:
+            continue
+        r, k = plant.r, k_of[lp.name]
+        order = r - 1 if lp.observer.order is None else lp.observer.order
+        u_max = None if lp.actuator is None else lp.actuator.u_max
+        L = lipschitz_rule(r, order, float(phibar[k]), float(gamma_M[k]), u_max)
+        if L is None or not math.isfinite(L) or L <= 0:
+            raise rd.error(f"loops.{lp.name}.observer.L", "a number, or \"computed\" with order r - 1 = "
+                           f"{r - 1}, an actuator.u_max and bounded signals (the rule phibar + gamma_M u_max)",
+                           f'"{COMPUTED}" with order {order}, u_max {u_max}')
+        loops[i] = replace(lp, observer=replace(lp.observer, L=L))
     return replace(sc, loops=tuple(loops))
 
 

@@ -151,7 +151,10 @@ class ObserverSpec:
     (ftstab_mj/simulation/stages/differentiator.py); ``levant_filtering`` is its filtering variant."""
 
     kind: str = field(metadata=meta("the observer", one_of(*OBSERVER_KINDS)))
-    L: float = field(metadata=meta("bound on |z_1^(order+1)| (chain units: m/s^(order+1))", positive))
+    L: float | str = field(metadata=meta(
+        'bound on |z_1^(order+1)| (chain units: m/s^(order+1)), or "computed": the rule phibar + gamma_M u_max '
+        "from the plant's true bounds and the actuator's saturation (order r - 1; needs actuator.u_max)",
+        lambda v: None if v == "computed" or (not isinstance(v, str) and v > 0) else 'a number > 0 or "computed"'))
     order: int | None = field(default=None, metadata=meta(
         "differentiation order n >= r - 1 (default r - 1)", non_negative))
     filter_order: int | None = field(default=None, metadata=meta(

@@ -190,6 +190,9 @@ METRIC_UNITS = {
     "certificate": "", "clamp": "", "bound_applies_reason": "", "u_needed": "u", "estimation_error_max": "chain",
     "estimation_error_rms": "chain", "time_saturated": "s", "saturated_fraction": "", "chattering_applied": "u/s",
     "u_applied_max_abs": "u", "reference_r_max_abs": "chain", "phibar_covers_reference": "",
+    # the differentiator's assumption |z_1^(n+1)| <= L (L and the max in m/s^(n+1) on a cart)
+    "observer_L": "chain", "observer_derivative_max": "chain", "observer_L_exceeded_ratio": "",
+    "observer_L_exceeded_fraction": "",
     # theorem 3 (true bounds)
     "Phibar": "u", "Delta": "chain", "phi_hat_limsup": "u", "V1_max_final": "chain", "Delta_held": "",
     "phi_hat_max_final": "u", "phi_hat_bound_held": "", "V1_min_final": "chain", "eps_reached": "",

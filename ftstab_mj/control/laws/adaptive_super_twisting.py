@@ -64,6 +64,7 @@ class AdaptiveSuperTwisting(Law):
     epsilon: float
     eta_floor: float = 0.01
     alpha0: float | None = None
+    u_continuous = True  # -alpha |s|^(1/2) sign s + v, v integrates the relay: continuous
     name = "adaptive_super_twisting"
     summary = ("super-twisting with adapted gains, alpha' = omega1 sqrt(gamma1/2) sign(|s| - mu), beta = 2 epsilon alpha "
                "(Shtessel, Taleb, Plestan 2012, Automatica 48:759)")

@@ -42,6 +42,7 @@ class LinearLaw(Law):
     summary = "linear state feedback u = -K z placing the closed-loop poles (Hong's law at k = 0)"
     params = (Param("poles", tuple[float, ...], "closed-loop poles, real, one per integrator", "1/s", _poles),)
     lyapunov = True
+    u_continuous = True
     K: np.ndarray = field(init=False, repr=False, compare=False)
     P: np.ndarray = field(init=False, repr=False, compare=False)
 

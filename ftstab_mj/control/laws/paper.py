@@ -46,12 +46,14 @@ EPS = Param("eps", float, "adaptation dead zone: adaptive, the V1 level below wh
 
 # Hong's controller, the base of the three laws (LoopInfo.hong).
 HONG_PARAMS = (
-    Param("k", float, "homogeneity degree, -1/r < k <= 0 (full form)", "dimensionless"),
+    Param("k", float, "k: the full form's homogeneity degree, -1/r < k <= 0; the simplified form's degree is k/(1+k), -1/(r+1) < k <= 0", "dimensionless"),
     # l_i: at k = 0 the roots' scale of the nested polynomial, 1/s; at k < 0 the law is not dimensionally
     # homogeneous and l_i carries powers of the z_1 unit and of s set by k, i and the form (full form: l_1 in m^-k/s).
     Param("gains", tuple[float, ...], "Hong's gains l_1..l_r > 0 (Hurwitz nested polynomial)",
           "1/s at k = 0; at k < 0, m^a s^b with a, b set by k, i and the form (rad for m on a hinge)"),
-    Param("form", str, "Hong's controller form", check=one_of("full", "simplified"), default="full"),
+    Param("form", str, "Hong's controller form: full (degree k, weights 1 + (i-1) k) | simplified (Proposition 1 "
+          "as printed: degree k/(1+k), weights (1 + i k)/(1 + k); V1 not a Lyapunov function, no proof)",
+          check=one_of("full", "simplified"), default="full"),
 )
 
 
@@ -96,6 +98,7 @@ class NominalLaw(_HongLaw):
     summary = "Hong's homogeneous controller alone, u = u0 (the paper, Theorem 1)"
     native_code = 0
     time_bound = u_bound_from_V1 = True
+    u_continuous = True  # u0 is continuous (Hong 2002)
     hong: HongController
 
     @classmethod

@@ -3,12 +3,23 @@
 Surface s = z_r + sum_{i<r} c_i z_i (``surface`` = (c_1, ..., c_{r-1}); the polynomial
 y^(r-1) + c_{r-1} y^(r-2) + ... + c_1 must be Hurwitz, it is the motion on s = 0). Its known drift
 a(z) = sum_{i<r} c_i z_{i+1} is cancelled, u = -a(z) + w, so that with gamma = 1 the surface obeys
-s' = phi + w exactly; with gamma != 1 the residual (gamma - 1) u joins the disturbance (its
-derivative then also carries the c_i z_{i+1} terms: the bound L must cover them).
+s' = phi + w exactly. With a gain gamma(t) in [gamma_m, gamma_M], s' = phi + (1 - gamma) a(z) + gamma w:
+the smooth part phi + (1 - gamma) a is the disturbance (its derivative carries phi', gamma' a and the
+c_i z_{i+2} terms of a', bounded on a compact set), while gamma multiplies w and so scales the gains.
+(gamma - 1) w is NOT a disturbance term: its derivative holds |s|^(-1/2) s', unbounded near s = 0.
 
-* super-twisting (Levant 1993; Moreno & Osorio 2012, IEEE TAC 57(4):1035):
-  w = -k1 sig(s, 1/2) + v, v' = -k2 sign s. For |phi'| <= L the usual gains are k1 = 1.5 sqrt(L),
-  k2 = 1.1 L (the defaults when only ``L`` is given); s and s' then vanish in finite time, and with
+* super-twisting (Levant 1993, IJC 58(6):1247; Moreno & Osorio 2012, IEEE TAC 57(4):1035):
+  w = -k1 sig(s, 1/2) + v, v' = -k2 sign s. Gain conditions used, for s'' = C(t) + gamma(t) w' with
+  |C| <= L, 0 < gamma_m <= gamma <= gamma_M:
+  - Levant's sufficient condition: k2 > L / gamma_m and
+    k1^2 >= 4 L gamma_M (k2 + L) / (gamma_m^2 (k2 - L));
+  - Moreno & Osorio's strict Lyapunov function (quadratic in (sig(s, 1/2), v - the disturbance)),
+    gamma = 1: finite-time convergence when k1 > 2 sqrt(L) and k2 > k1 (5 L k1 + 4 L^2) / (2 k1^2 - 8 L);
+  - the field's usual tuning k1 = 1.5 sqrt(L), k2 = 1.1 L (Levant 1998, Automatica 34(3):379: the
+    defaults when only ``L`` is given) meets neither sufficient condition (Levant's needs k1 >= 9.2
+    sqrt(L) at k2 = 1.1 L, Moreno-Osorio's k1 > 2 sqrt(L)): it is validated by simulation, and no
+    time bound is claimed for this law. With gamma != 1 divide L by gamma_m (Levant's condition).
+  s and s' then vanish in finite time, and with
   sampling |s| = O(h^2). State (v,), v(0) = 0; v tends to -phi, so phi_hat = -v is logged as the
   disturbance estimate. Moreno & Osorio's strict Lyapunov function needs the unknown phi: none is
   logged (V1 = NaN).

@@ -62,6 +62,22 @@ LEVANT_2003_LAMBDAS = (1.1, 1.5, 2.0, 3.0, 5.0, 8.0)
 MAX_TOTAL_ORDER = len(LEVANT_2003_LAMBDAS) - 1
 
 
+def lipschitz_rule(r: int, order: int, phibar: float, gamma_M: float, u_max: float | None) -> float | None:
+    """The differentiator's L (chain units, m/s^(order+1)) for a loop of chain length r whose plant obeys
+    z_r' = phi + gamma u with |phi| <= phibar, gamma <= gamma_M, and whose actuator saturates at u_max.
+
+    Levant 2003 (section 4) assumes |f^(n+1)| <= L for the input f = z_1 along the whole run. With
+    n = r - 1, f^(r) = phi + gamma u_applied, and the reachable set of |u_applied| is bounded by the
+    saturation alone: whatever the estimation error drives the law to ask, |f^(r)| <= phibar + gamma_M u_max.
+    That is the rule (the sup over the reachable set, not an estimate from a run). None when no such bound
+    exists: no saturation (the law's u is then bounded only where the theorems hold, and a noisy estimate
+    leaves that set: the differentiator's assumption fails, the loop can diverge), or n > r - 1 (the
+    bound then needs phi's and u's derivatives)."""
+    if order != r - 1 or u_max is None or not np.isfinite(u_max):
+        return None
+    return float(phibar + gamma_M * u_max)
+
+
 def nonrecursive_lambdas(lambdas) -> tuple[float, ...]:
     """The coefficients lt_0..lt_N of the non-recursive form from lambda_0..lambda_N of the
     recursive one: lt_N = lambda_N, lt_m = lambda_m lt_(m+1)^(m/(m+1))."""
