@@ -30,6 +30,7 @@ import warnings
 import numpy as np
 
 from ftstab_mj.control.law import declared
+from ftstab_mj.metrics.oscillation import oscillation_metrics, predicted_limit_cycle
 from ftstab_mj.simulation.records import RunInfo, format_table  # noqa: F401 - format_table is part of this API
 
 
@@ -611,6 +612,13 @@ class _Ring:
             self.file = None
 
 
+def _oscillation(fw, h: float) -> dict:
+    """The steady oscillation of z_1 and u over the final window and its averaged power
+    (ftstab_mj.metrics.oscillation)."""
+    z = fw.z12[:fw.m]
+    return oscillation_metrics(z[:, 0], z[:, 1] if z.shape[1] > 1 else None, fw.u[:fw.m], h)
+
+
 class _FinalWindow:
     """The final window's reductions, fed the window's rows in order (ring columns, see _LoopStream):
     its start, max |z_i|, max and min V1, max phi_hat, and (stages) max |z_hat - z| per component and
@@ -625,6 +633,7 @@ class _FinalWindow:
         self.z_max = self.v_max = self.v_min = self.ph_max = self.e_max = None
         self.e_sq = _AxisSum(r)
         self.u = np.empty(capacity)  # filled up to m
+        self.z12 = np.empty((capacity, min(r, 2)))  # z_1 (and z_2) whole, for the oscillation metrics
         self.u_applied = np.empty(capacity if self.applied else 0)
 
     def update(self, rows) -> None:
@@ -636,6 +645,7 @@ class _FinalWindow:
         z = rows[:, 1:1 + r]
         self.z_max = _nan_max(self.z_max, np.max(np.abs(z), axis=0))
         self.u[m:m + k] = rows[:, 1 + r]
+        self.z12[m:m + k] = z[:, :self.z12.shape[1]]
         V1, ph = rows[:, 2 + r], rows[:, 3 + r]
         self.v_max, self.v_min = _nan_max(self.v_max, np.max(V1)), _nan_min(self.v_min, np.min(V1))
         self.ph_max = _nan_max(self.ph_max, np.max(ph))
@@ -792,6 +802,7 @@ class _LoopStream:
             "theorem3": None if left else theorem3_check(loop, fw.v_max, fw.ph_max, fw.v_min),
             "certificate": certificate_summary(loop),
         })
+        out.update(_oscillation(fw, h))
         if stages is not None:  # the loop's sensor, observer, actuator (records.STAGE_FIELDS)
             t_sat = self.n_saturated * h  # saturated_time(u, stages, h)
             out.update({
@@ -805,6 +816,7 @@ class _LoopStream:
                 "chattering_applied": chattering(fw.u_applied[:fw.m], h),
                 "u_applied_max_abs": _num(self.u_applied_max),
             })
+            out["limit_cycle_predicted"] = predicted_limit_cycle(loop, h)
         elif self.clamp:  # the plant's actuator clamps: u_max_abs, chattering are the law's u; these what it applied
             t_sat = self.n_saturated * h
             out.update({
