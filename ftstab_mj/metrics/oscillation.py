@@ -2,7 +2,8 @@
 
 Measured (per signal x of m samples of period h, here z_1 and the law's u):
 
-* the signal is detrended (its least-squares line removed: a slow drift is not the oscillation);
+* the last LAST samples of the window are analysed (32.8 s at 1 ms: many cycles of any chattering),
+  their mean removed;
 * **frequency** (Hz): from the crossings of zero with hysteresis (a Schmitt trigger at +-H, H = RMS / 4
   of the detrended signal, so sampling noise around zero does not count): the number of full
   cycles between the first and the last upward crossing over the time between them;
@@ -27,14 +28,8 @@ import math
 
 import numpy as np
 
-HYSTERESIS = 0.25  # Schmitt trigger threshold, in RMS of the detrended signal
-
-
-def _detrend(x):
-    t = np.arange(len(x), dtype=float)
-    A = np.vstack([t, np.ones_like(t)]).T
-    coef, *_ = np.linalg.lstsq(A, x, rcond=None)
-    return x - A @ coef
+HYSTERESIS = 0.25  # Schmitt trigger threshold, in RMS of the de-meaned signal
+LAST = 1 << 15  # samples analysed: the window's last ones (its temporaries then stay under 1 MB)
 
 
 def _upward_crossings(y, H: float):
@@ -49,11 +44,11 @@ def oscillation(x, period: float) -> dict:
     """{"amplitude", "frequency"} of the steady oscillation of samples x (m,) of period h s (module
     docstring); values None when fewer than two full cycles are found or x is not finite."""
     none = {"amplitude": None, "frequency": None}
-    x = np.asarray(x, dtype=float)
+    x = np.asarray(x, dtype=float)[-LAST:]
     if len(x) < 8 or not np.all(np.isfinite(x)):
         return none
-    y = _detrend(x)
-    rms = math.sqrt(float(np.mean(y * y)))
+    y = x - np.mean(x)  # (the one array of the window's size this makes)
+    rms = math.sqrt(float(np.dot(y, y)) / len(y))
     if rms == 0.0:
         return none
     up = _upward_crossings(y, HYSTERESIS * rms)
@@ -65,19 +60,15 @@ def oscillation(x, period: float) -> dict:
     return {"amplitude": float(np.median(half_pp)), "frequency": float(freq)}
 
 
-def averaged_power(z1, z2) -> float | None:
-    """Mean of |z_1 z_2| over the samples (chain units^2 / s); None when not finite."""
-    p = float(np.mean(np.abs(np.asarray(z1, dtype=float) * np.asarray(z2, dtype=float))))
-    return p if math.isfinite(p) else None
-
-
-def oscillation_metrics(z1, z2, u, period: float) -> dict:
-    """The loop's oscillation keys over the final window: z1_osc_amplitude (m or rad), z1_osc_frequency
-    (Hz), u_osc_amplitude (chain units of u), u_osc_frequency (Hz), averaged_power."""
+def oscillation_metrics(z1, u, period: float, z1_z2_abs_sum: float | None) -> dict:
+    """The loop's oscillation keys over the final window of m samples: z1_osc_amplitude (m or rad),
+    z1_osc_frequency (Hz), u_osc_amplitude (chain units of u), u_osc_frequency (Hz), averaged_power
+    (z1_z2_abs_sum / m: the window's sum of |z_1 z_2|, None for r = 1)."""
     oz, ou = oscillation(z1, period), oscillation(u, period)
+    ap = None if z1_z2_abs_sum is None or not len(z1) else z1_z2_abs_sum / len(z1)
     return {"z1_osc_amplitude": oz["amplitude"], "z1_osc_frequency": oz["frequency"],
             "u_osc_amplitude": ou["amplitude"], "u_osc_frequency": ou["frequency"],
-            "averaged_power": None if z2 is None else averaged_power(z1, z2)}
+            "averaged_power": ap if ap is None or math.isfinite(ap) else None}
 
 
 def predicted_limit_cycle(loop, period: float) -> dict | None:

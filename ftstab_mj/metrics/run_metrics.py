@@ -30,7 +30,7 @@ import warnings
 import numpy as np
 
 from ftstab_mj.control.law import declared
-from ftstab_mj.metrics.oscillation import oscillation_metrics, predicted_limit_cycle
+from ftstab_mj.metrics.oscillation import LAST as OSC_LAST, oscillation_metrics, predicted_limit_cycle
 from ftstab_mj.simulation.records import RunInfo, format_table  # noqa: F401 - format_table is part of this API
 
 
@@ -615,8 +615,9 @@ class _Ring:
 def _oscillation(fw, h: float) -> dict:
     """The steady oscillation of z_1 and u over the final window and its averaged power
     (ftstab_mj.metrics.oscillation)."""
-    z = fw.z12[:fw.m]
-    return oscillation_metrics(z[:, 0], z[:, 1] if z.shape[1] > 1 else None, fw.u[:fw.m], h)
+    n = min(fw.m, len(fw.z1))
+    z1 = np.roll(fw.z1[:n], -(fw.m % len(fw.z1))) if fw.m > len(fw.z1) else fw.z1[:n]  # oldest first
+    return oscillation_metrics(z1, fw.u[:fw.m], h, None if fw.z1_z2 is None else fw.z1_z2.result())
 
 
 class _FinalWindow:
@@ -633,7 +634,8 @@ class _FinalWindow:
         self.z_max = self.v_max = self.v_min = self.ph_max = self.e_max = None
         self.e_sq = _AxisSum(r)
         self.u = np.empty(capacity)  # filled up to m
-        self.z12 = np.empty((capacity, min(r, 2)))  # z_1 (and z_2) whole, for the oscillation metrics
+        self.z1 = np.empty(min(capacity, OSC_LAST))  # z_1's last samples, a ring, for its oscillation
+        self.z1_z2 = _BlockSum() if r > 1 else None  # sum of |z_1 z_2|: the averaged power
         self.u_applied = np.empty(capacity if self.applied else 0)
 
     def update(self, rows) -> None:
@@ -645,7 +647,10 @@ class _FinalWindow:
         z = rows[:, 1:1 + r]
         self.z_max = _nan_max(self.z_max, np.max(np.abs(z), axis=0))
         self.u[m:m + k] = rows[:, 1 + r]
-        self.z12[m:m + k] = z[:, :self.z12.shape[1]]
+        keep = np.arange(max(k - len(self.z1), 0), k)  # the rows that stay in the ring
+        self.z1[(m + keep) % len(self.z1)] = z[keep, 0]
+        if self.z1_z2 is not None:
+            self.z1_z2.update(np.abs(z[:, 0] * z[:, 1]))
         V1, ph = rows[:, 2 + r], rows[:, 3 + r]
         self.v_max, self.v_min = _nan_max(self.v_max, np.max(V1)), _nan_min(self.v_min, np.min(V1))
         self.ph_max = _nan_max(self.ph_max, np.max(ph))

@@ -1,0 +1,73 @@
+"""The describing-function prediction of chattering (control/describing.py) against closed forms and
+against the measured limit cycle (metrics/oscillation.py) on the cart with a lagged actuator."""
+
+import math
+
+import numpy as np
+import pytest
+
+from ftstab_mj import api
+from ftstab_mj.control.describing import describing_function, harmonic_balance
+from ftstab_mj.control.law import law_class
+from ftstab_mj.metrics.oscillation import oscillation
+
+
+def _law(name, **values):
+    cls = law_class(name)
+    params = {p.name: p.default for p in cls.all_params() if not p.required}
+    params.update(values)
+    return cls.from_params(2, params)
+
+
+def test_twisting_describing_function_and_limit_cycles_match_their_closed_forms():
+    # N = -4 (r1 + j r2) / (pi a); with 1/(tau s + 1)^n the phase condition n atan(w tau) = atan(r2 / r1)
+    # gives w, and a = 4 |r1 + j r2| |G(jw)| / (pi w^2) (harmonic balance on 1 / s^2)
+    tw = _law("twisting", r1=5.0, r2=3.0)
+    N = describing_function(tw, 0.1, 10.0)
+    assert N == pytest.approx(-4 * (5 + 3j) / (math.pi * 0.1), rel=2e-3)  # O(1 / 256) quadrature
+    tau = 0.02
+    for n in (1, 2):
+        w = math.tan(math.atan(3 / 5) / n) / tau
+        a = 4 * math.hypot(5, 3) * (1 + (w * tau) ** 2) ** (-n / 2) / (math.pi * w * w)
+        lc = harmonic_balance(tw, tau, n)
+        assert lc.frequency == pytest.approx(w / (2 * math.pi), rel=1e-3)
+        assert lc.amplitude_z1 == pytest.approx(a, rel=2e-3)
+
+
+def test_oscillation_of_a_sinusoid_and_a_square_wave():
+    h = 1e-3
+    t = np.arange(20000) * h
+    rng = np.random.default_rng(0)
+    x = 0.3 + 2e-3 * np.sin(2 * np.pi * 7.3 * t) + 1e-5 * rng.standard_normal(len(t))
+    o = oscillation(x, h)
+    assert o["frequency"] == pytest.approx(7.3, rel=2e-3) and o["amplitude"] == pytest.approx(2e-3, rel=2e-2)
+    sq = 4.0 * np.sign(np.sin(2 * np.pi * 11.0 * t + 0.1))
+    o = oscillation(sq, h)
+    assert o["frequency"] == pytest.approx(11.0, rel=2e-3) and o["amplitude"] == pytest.approx(4.0)
+    assert oscillation(np.full(100, 1.0), h)["frequency"] is None
+
+
+CASES = {  # law / actuator pairs: the chattering of each is a DF limit cycle (docs/chattering.md)
+    "twisting, one 20 ms lag": {"loops.cart.controller": {"law": "twisting", "r1": 5.0, "r2": 3.0},
+                                "loops.cart.actuator.tau": 0.02, "loops.cart.actuator.lag_order": 1},
+    "robust, two 10 ms lags": {"loops.cart.actuator.tau": 0.01, "loops.cart.actuator.lag_order": 2},
+    "super-twisting, two 10 ms lags": {"loops.cart.controller": {"law": "super_twisting", "surface": [3.0], "L": 8.0},
+                                       "loops.cart.actuator.tau": 0.01, "loops.cart.actuator.lag_order": 2},
+}
+
+
+@pytest.mark.parametrize("case", list(CASES))
+def test_measured_limit_cycle_within_20_percent_of_the_describing_function(case):
+    # the cart without disturbance and with gamma = 1, as the harmonic balance assumes; 6 s: the
+    # final window (the last 20 %) holds tens of cycles after the transient from x = 1 m
+    over = {"loops.cart.disturbance.amplitude": 0.0, "loops.cart.gain.amplitude": 0.0, "sim.duration": 6.0,
+            **CASES[case]}
+    m = api.run("cart_r2_actuator_lag", overrides=over, keep_samples=False).metrics["loops"]["cart"]
+    pred = m["limit_cycle_predicted"]
+    assert pred is not None
+    assert m["z1_osc_frequency"] == pytest.approx(pred["frequency"], rel=0.2)
+    assert m["z1_osc_amplitude"] == pytest.approx(pred["amplitude_z1"], rel=0.2)
+    assert m["u_osc_frequency"] == pytest.approx(m["z1_osc_frequency"], rel=0.02)  # one oscillation
+    # the averaged power of the first harmonic, A^2 w / pi, within the same 20 % (squared: 44 %)
+    ap = pred["amplitude_z1"] ** 2 * 2 * pred["frequency"]
+    assert m["averaged_power"] == pytest.approx(ap, rel=0.44)
