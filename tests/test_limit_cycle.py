@@ -71,3 +71,19 @@ def test_measured_limit_cycle_within_20_percent_of_the_describing_function(case)
     # the averaged power of the first harmonic, A^2 w / pi, within the same 20 % (squared: 44 %)
     ap = pred["amplitude_z1"] ** 2 * 2 * pred["frequency"]
     assert m["averaged_power"] == pytest.approx(ap, rel=0.44)
+
+
+def test_compare_draws_the_prediction_beside_the_measurement(tmp_path):
+    from ftstab_mj.figures.compare_report import draw_figures, limit_cycle_figure
+
+    rows = [{"label": "robust", "status": "completed", "final_abs_z1": 1e-4, "final_abs_z2": 1e-2,
+             "z1_osc_amplitude": 1.9e-4, "z1_osc_frequency": 14.3, "df_z1_amplitude": 1.93e-4, "df_frequency": 14.2},
+            {"label": "linear", "status": "completed", "final_abs_z1": 1e-6, "final_abs_z2": 1e-6,
+             "z1_osc_amplitude": None, "z1_osc_frequency": None, "df_z1_amplitude": None, "df_frequency": None}]
+    fig = limit_cycle_figure("c", rows)
+    (ax_a, ax_f) = fig.axes
+    assert [tuple(line.get_xydata()[0]) for line in ax_a.lines[:1]] == [(1.93e-4, 1.9e-4)]  # x predicted, y measured
+    assert [tuple(line.get_xydata()[0]) for line in ax_f.lines[:1]] == [(14.2, 14.3)]
+    paths = draw_figures("c", rows, None, [], {}, tmp_path)
+    assert [p.name for p in paths] == ["c_limit_cycle.png"]
+    assert limit_cycle_figure("c", rows[1:]) is None  # no loop with a lag: no figure
