@@ -13,8 +13,8 @@ Measured (per signal x of m samples of period h, here z_1 and the law's u):
 
 None when the window holds fewer than two full cycles (no steady oscillation to speak of).
 
-Averaged power (Perez-Ventura & Fridman, chattering comparisons of discontinuous and continuous
-sliding-mode laws, 2017-2019): the time average over the window of |z_1 z_2| (chain units^2 / s),
+Averaged power (Perez-Ventura & Fridman, arXiv:1705.09711, 2017: chattering of discontinuous and continuous
+sliding-mode laws compared): the time average over the window of |z_1 z_2| (chain units^2 / s),
 which for a harmonic z_1 = A sin(W t) equals A^2 W / pi: it weighs the amplitude and the frequency
 together (a small fast oscillation and a large slow one may cost the same).
 

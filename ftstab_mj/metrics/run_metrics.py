@@ -385,7 +385,8 @@ def theorem3_check(loop, v_max, ph_max, v_min):
     """Theorem 3's bounds (true phibar, gamma_m) and whether the final window respects them, from
     the window's max V1 (v_max), max phi_hat (ph_max) and min V1 (v_min).
 
-    Delta: limsup V1 <= Delta, checked as max V1 over the final window <= Delta;
+    Delta: limsup V1 <= Delta, checked as max V1 over the final window <= Delta (their ratio:
+    V1_max_over_Delta);
     phi_hat_limsup: checked as max phi_hat over the final window <= it; eps_reached: min V1 over
     the final window <= eps (liminf V1 <= eps). None for non-adaptive laws or without certificate.
     """
@@ -402,6 +403,8 @@ def theorem3_check(loop, v_max, ph_max, v_min):
     return {
         "Phibar": _num(b.Phibar), "Delta": _num(b.Delta), "phi_hat_limsup": _num(b.phi_hat_limsup),
         "V1_max_final": _num(v_max), "Delta_held": bool(v_max <= b.Delta),
+        # how tight Theorem 3 is on this run: 1 would be a bound reached; the sweep theorem3_tightness
+        "V1_max_over_Delta": _num(v_max / b.Delta) if b.Delta > 0 else None,
         "phi_hat_max_final": _num(ph_max),
         # None at k = 0, where Theorem 3 gives no finite bound (see theorem3_bounds)
         "phi_hat_bound_held": bool(ph_max <= b.phi_hat_limsup) if np.isfinite(b.phi_hat_limsup) else None,
