@@ -34,6 +34,19 @@ def test_twisting_describing_function_and_limit_cycles_match_their_closed_forms(
         assert lc.amplitude_z1 == pytest.approx(a, rel=2e-3)
 
 
+def test_super_twisting_describing_function_matches_boiko_fridman():
+    # on s = A sin: N_s = 1.1128 k1 / sqrt(A) - j 4 k2 / (pi A w) (Boiko & Fridman 2005; 1.1128 =
+    # (4 / pi) int_0^(pi/2) sin^(3/2)); the law adds -c z_2 and acts on s = z_2 + c z_1 = (c + j w) z_1
+    # (the state v run along the harmonic: the stateful path of describing_function)
+    st = _law("super_twisting", surface=(3.0,), k1=2.0, k2=5.0)
+    a, w, c = 1e-3, 40.0, 3.0
+    A = abs(c + 1j * w) * a
+    N_s = 2.0 * 1.1128 / math.sqrt(A) - 1j * 4 * 5.0 / (math.pi * A * w)
+    expected = -c * 1j * w - N_s * (c + 1j * w)
+    # first order in 1 / 128 samples per period: v's explicit step lags it by half a sample (pi / 128 = 2.5 %)
+    assert describing_function(st, a, w) == pytest.approx(expected, rel=math.pi / 128)
+
+
 def test_oscillation_of_a_sinusoid_and_a_square_wave():
     h = 1e-3
     t = np.arange(20000) * h

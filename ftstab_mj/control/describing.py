@@ -36,7 +36,8 @@ from dataclasses import dataclass
 import numpy as np
 
 SAMPLES = 256  # points per period of the harmonic (first-harmonic error O(1 / SAMPLES) for a relay)
-PERIODS = 3  # periods a law with state is run along the harmonic; the last gives N
+PERIODS = 2  # periods a law with state is run along the harmonic: the second gives N, the first checks it
+STATE_SAMPLES = 128  # points per period for a law with state (stepped one sample at a time: slower)
 PERIODIC_RTOL = 1e-3  # |U_last - U_before| <= this |U_last|: the law's response is periodic
 
 
@@ -60,10 +61,13 @@ def linear_part(w, r: int, tau: float, lag_order: int, delay: float = 0.0):
     return np.exp(-jw * delay) / ((1.0 + jw * tau) ** lag_order * jw ** r)
 
 
-def describing_function(law, a, w, samples: int = SAMPLES, periods: int = PERIODS):
+def describing_function(law, a, w, samples: int | None = None, periods: int = PERIODS):
     """N(a, w) = U / a (complex, broadcast shape of a and w): the first harmonic U of the law's u when
     z_1 = a cos(theta), z_i = Re(a (jw)^(i-1) e^(j theta)) (a in chain units, w in rad/s). NaN where a
-    law with state does not respond periodically."""
+    law with state does not respond periodically. samples per period: SAMPLES, or STATE_SAMPLES for a
+    law with a state."""
+    if samples is None:
+        samples = SAMPLES if law.state_size == 0 else STATE_SAMPLES
     a, w = np.broadcast_arrays(np.asarray(a, dtype=float), np.asarray(w, dtype=float))
     shape = a.shape
     a, w = a.ravel(), w.ravel()
