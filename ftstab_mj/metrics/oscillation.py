@@ -3,7 +3,8 @@
 Measured (per signal x of m samples of period h, here z_1 and the law's u):
 
 * the last LAST samples of the window are analysed (32.8 s at 1 ms: many cycles of any chattering),
-  their mean removed;
+  their mean removed (u), or for z_1 their moving average over one cycle of u's oscillation, so a
+  slow motion under the chattering (the response to a slow disturbance) is not taken for it;
 * **frequency** (Hz): from the crossings of zero with hysteresis (a Schmitt trigger at +-H, H = RMS / 4
   of the detrended signal, so sampling noise around zero does not count): the number of full
   cycles between the first and the last upward crossing over the time between them;
@@ -40,14 +41,21 @@ def _upward_crossings(y, H: float):
     return idx[1:][high[1:] & ~high[:-1]]
 
 
-def oscillation(x, period: float) -> dict:
+def oscillation(x, period: float, cycle: float | None = None) -> dict:
     """{"amplitude", "frequency"} of the steady oscillation of samples x (m,) of period h s (module
-    docstring); values None when fewer than two full cycles are found or x is not finite."""
+    docstring); values None when fewer than two full cycles are found or x is not finite. cycle (s):
+    the oscillation's period when known (from u): the moving average of x over it is removed instead
+    of the mean, so a slow motion under the chattering (a disturbance's response) is not counted."""
     none = {"amplitude": None, "frequency": None}
     x = np.asarray(x, dtype=float)[-LAST:]
     if len(x) < 8 or not np.all(np.isfinite(x)):
         return none
-    y = x - np.mean(x)  # (the one array of the window's size this makes)
+    n = 0 if cycle is None else int(round(cycle / period))
+    if 2 <= n <= len(x) // 8:  # a centred moving average over one cycle (the edges' half cycles dropped)
+        c = np.concatenate([[0.0], np.cumsum(x)])
+        y = x[n // 2:n // 2 + len(x) - n + 1] - (c[n:] - c[:-n]) / n
+    else:
+        y = x - np.mean(x)
     rms = math.sqrt(float(np.dot(y, y)) / len(y))
     if rms == 0.0:
         return none
@@ -64,8 +72,9 @@ def oscillation_metrics(z1, u, period: float, z1_z2_abs_sum: float | None) -> di
     """The loop's oscillation keys over the final window of m samples: z1_osc_amplitude (m or rad),
     z1_osc_frequency (Hz), u_osc_amplitude (chain units of u), u_osc_frequency (Hz), averaged_power
     (z1_z2_abs_sum / m: the window's sum of |z_1 z_2|, None for r = 1)."""
-    oz, ou = oscillation(z1, period), oscillation(u, period)
-    ap = None if z1_z2_abs_sum is None or not len(z1) else z1_z2_abs_sum / len(z1)
+    ou = oscillation(u, period)  # u switches cleanly: its cycle separates z_1's chattering from slow motion
+    oz = oscillation(z1, period, None if ou["frequency"] is None else 1.0 / ou["frequency"])
+    ap = None if z1_z2_abs_sum is None or not len(z1) else float(z1_z2_abs_sum) / len(z1)
     return {"z1_osc_amplitude": oz["amplitude"], "z1_osc_frequency": oz["frequency"],
             "u_osc_amplitude": ou["amplitude"], "u_osc_frequency": ou["frequency"],
             "averaged_power": ap if ap is None or math.isfinite(ap) else None}
