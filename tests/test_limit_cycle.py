@@ -58,6 +58,13 @@ def test_oscillation_of_a_sinusoid_and_a_square_wave():
     o = oscillation(sq, h)
     assert o["frequency"] == pytest.approx(11.0, rel=2e-3) and o["amplitude"] == pytest.approx(4.0)
     assert oscillation(np.full(100, 1.0), h)["frequency"] is None
+    # a slow motion 5x larger under the oscillation: about the mean it is taken for the signal; about
+    # the moving average over one cycle it leaves 0.01 (1 - sinc(pi 0.5 / 14)) = 2.1e-5, 1 % of it
+    fast = 2e-3 * np.sin(2 * np.pi * 14.0 * t)
+    slow = 0.01 * np.sin(2 * np.pi * 0.5 * t)
+    assert oscillation(fast + slow, h)["frequency"] == pytest.approx(0.5, rel=0.05)
+    o = oscillation(fast + slow, h, cycle=1 / 14.0)
+    assert o["frequency"] == pytest.approx(14.0, rel=2e-3) and o["amplitude"] == pytest.approx(2e-3, rel=2e-2)
 
 
 CASES = {  # law / actuator pairs: the chattering of each is a DF limit cycle (docs/chattering.md)
