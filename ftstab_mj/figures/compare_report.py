@@ -109,9 +109,39 @@ def time_figure(name: str, series: dict, where: str = "", r: int = 2):
     return fig
 
 
+def limit_cycle_figure(name: str, rows: list[dict]):
+    """Measured against predicted chattering (matplotlib Figure), one point per run with a
+    describing-function prediction: z_1's amplitude (m) and frequency (Hz), measured on the y axis,
+    predicted on the x axis, the line y = x and the +-20 % band; None when no row has a prediction."""
+    import matplotlib.pyplot as plt
+
+    pts = [r for r in rows if r.get("df_frequency") and r.get("z1_osc_frequency") and r.get("z1_osc_amplitude")]
+    if not pts:
+        return None
+    fig, axes = plt.subplots(1, 2, figsize=(10, 4.2))
+    labels = _order(pts)
+    for ax, (pred, meas, what) in zip(axes, (("df_z1_amplitude", "z1_osc_amplitude", "z_1 amplitude (m or rad)"),
+                                             ("df_frequency", "z1_osc_frequency", "frequency (Hz)"))):
+        for j, label in enumerate(labels):
+            mine = [r for r in pts if r["label"] == label]
+            ax.loglog([r[pred] for r in mine], [r[meas] for r in mine], "os^vD"[j % 5], ms=5, label=label)
+        lo = min(min(r[pred], r[meas]) for r in pts) / 1.5
+        hi = max(max(r[pred], r[meas]) for r in pts) * 1.5
+        ax.plot([lo, hi], [lo, hi], "k-", lw=0.8)
+        ax.fill_between([lo, hi], [0.8 * lo, 0.8 * hi], [1.2 * lo, 1.2 * hi], color="0.85", label="+-20 %")
+        ax.set_xlabel(f"describing function: {what}")
+        ax.set_ylabel(f"measured: {what}")
+        ax.grid(True, which="both", alpha=0.3)
+    axes[0].legend(fontsize=7)
+    fig.suptitle(f"{name}: chattering measured against the describing-function prediction")
+    fig.tight_layout()
+    return fig
+
+
 def draw_figures(name: str, rows: list[dict], grid_path: str | None, grid, series: dict, out: Path,
                  where: str = "") -> list[Path]:
-    """Write ``<name>_accuracy.png`` (with a grid of >= 2 values) and ``<name>_time.png``; their paths."""
+    """Write ``<name>_accuracy.png`` (with a grid of >= 2 values), ``<name>_limit_cycle.png`` (when a
+    loop has an actuator lag: :func:`limit_cycle_figure`) and ``<name>_time.png``; their paths."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -123,6 +153,11 @@ def draw_figures(name: str, rows: list[dict], grid_path: str | None, grid, serie
         fig = accuracy_figure(name, rows, grid_path)
         paths.append(Path(out) / f"{name}_accuracy.png")
         fig.savefig(paths[-1], dpi=110, bbox_inches="tight")
+        plt.close(fig)
+    fig = limit_cycle_figure(name, rows) if rows else None
+    if fig is not None:
+        paths.append(Path(out) / f"{name}_limit_cycle.png")
+        fig.savefig(paths[-1], dpi=100, bbox_inches="tight")
         plt.close(fig)
     if series:
         fig = time_figure(name, series, where, r=max(r, 1))

@@ -30,6 +30,7 @@ import warnings
 import numpy as np
 
 from ftstab_mj.control.law import declared
+from ftstab_mj.metrics.oscillation import LAST as OSC_LAST, oscillation_metrics, predicted_limit_cycle
 from ftstab_mj.simulation.records import RunInfo, format_table  # noqa: F401 - format_table is part of this API
 
 
@@ -465,7 +466,8 @@ def theorem3_check(loop, v_max, ph_max, v_min):
     """Theorem 3's bounds (true phibar, gamma_m) and whether the final window respects them, from
     the window's max V1 (v_max), max phi_hat (ph_max) and min V1 (v_min).
 
-    Delta: limsup V1 <= Delta, checked as max V1 over the final window <= Delta;
+    Delta: limsup V1 <= Delta, checked as max V1 over the final window <= Delta (their ratio:
+    V1_max_over_Delta);
     phi_hat_limsup: checked as max phi_hat over the final window <= it; eps_reached: min V1 over
     the final window <= eps (liminf V1 <= eps). None for non-adaptive laws or without certificate.
     """
@@ -482,6 +484,8 @@ def theorem3_check(loop, v_max, ph_max, v_min):
     return {
         "Phibar": _num(b.Phibar), "Delta": _num(b.Delta), "phi_hat_limsup": _num(b.phi_hat_limsup),
         "V1_max_final": _num(v_max), "Delta_held": bool(v_max <= b.Delta),
+        # how tight Theorem 3 is on this run: 1 would be a bound reached; the sweep theorem3_tightness
+        "V1_max_over_Delta": _num(v_max / b.Delta) if b.Delta > 0 else None,
         "phi_hat_max_final": _num(ph_max),
         # None at k = 0, where Theorem 3 gives no finite bound (see theorem3_bounds)
         "phi_hat_bound_held": bool(ph_max <= b.phi_hat_limsup) if np.isfinite(b.phi_hat_limsup) else None,
@@ -692,6 +696,14 @@ class _Ring:
             self.file = None
 
 
+def _oscillation(fw, h: float) -> dict:
+    """The steady oscillation of z_1 and u over the final window and its averaged power
+    (ftstab_mj.metrics.oscillation)."""
+    n = min(fw.m, len(fw.z1))
+    z1 = np.roll(fw.z1[:n], -(fw.m % len(fw.z1))) if fw.m > len(fw.z1) else fw.z1[:n]  # oldest first
+    return oscillation_metrics(z1, fw.u[:fw.m], h, None if fw.z1_z2 is None else fw.z1_z2.result())
+
+
 class _FinalWindow:
     """The final window's reductions, fed the window's rows in order (ring columns, see _LoopStream):
     its start, max |z_i|, max and min V1, max phi_hat, and (stages) max |z_hat - z| per component and
@@ -706,6 +718,8 @@ class _FinalWindow:
         self.z_max = self.v_max = self.v_min = self.ph_max = self.e_max = None
         self.e_sq = _AxisSum(r)
         self.u = np.empty(capacity)  # filled up to m
+        self.z1 = np.empty(min(capacity, OSC_LAST))  # z_1's last samples, a ring, for its oscillation
+        self.z1_z2 = _BlockSum() if r > 1 else None  # sum of |z_1 z_2|: the averaged power
         self.u_applied = np.empty(capacity if self.applied else 0)
 
     def update(self, rows) -> None:
@@ -717,6 +731,10 @@ class _FinalWindow:
         z = rows[:, 1:1 + r]
         self.z_max = _nan_max(self.z_max, np.max(np.abs(z), axis=0))
         self.u[m:m + k] = rows[:, 1 + r]
+        keep = np.arange(max(k - len(self.z1), 0), k)  # the rows that stay in the ring
+        self.z1[(m + keep) % len(self.z1)] = z[keep, 0]
+        if self.z1_z2 is not None:
+            self.z1_z2.update(np.abs(z[:, 0] * z[:, 1]))
         V1, ph = rows[:, 2 + r], rows[:, 3 + r]
         self.v_max, self.v_min = _nan_max(self.v_max, np.max(V1)), _nan_min(self.v_min, np.min(V1))
         self.ph_max = _nan_max(self.ph_max, np.max(ph))
@@ -915,6 +933,7 @@ class _LoopStream:
             "theorem3": None if left else theorem3_check(loop, fw.v_max, fw.ph_max, fw.v_min),
             "certificate": certificate_summary(loop),
         })
+        out.update(_oscillation(fw, h))
         if stages is not None:  # the loop's sensor, observer, actuator (records.STAGE_FIELDS)
             t_sat = self.n_saturated * h  # saturated_time(u, stages, h)
             out.update({
@@ -929,6 +948,7 @@ class _LoopStream:
             })
             if self.lipschitz is not None:
                 out.update(self.lipschitz.result())
+            out["limit_cycle_predicted"] = predicted_limit_cycle(loop, h)
         elif self.clamp:  # the plant's actuator clamps: u_max_abs, chattering are the law's u; these what it applied
             t_sat = self.n_saturated * h
             out.update({

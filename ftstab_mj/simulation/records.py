@@ -193,6 +193,10 @@ METRIC_UNITS = {
     # the differentiator's assumption |z_1^(n+1)| <= L (L and the max in m/s^(n+1) on a cart)
     "observer_L": "chain", "observer_derivative_max": "chain", "observer_L_exceeded_ratio": "",
     "observer_L_exceeded_fraction": "",
+    # the steady oscillation (metrics/oscillation.py) and its describing-function prediction
+    "z1_osc_amplitude": "chain", "z1_osc_frequency": "Hz", "u_osc_amplitude": "u", "u_osc_frequency": "Hz",
+    "averaged_power": "chain^2/s", "limit_cycle_predicted": "", "frequency": "Hz", "amplitude_z1": "chain",
+    "amplitude_u": "u", "delay": "s", "V1_max_over_Delta": "",
     # theorem 3 (true bounds)
     "Phibar": "u", "Delta": "chain", "phi_hat_limsup": "u", "V1_max_final": "chain", "Delta_held": "",
     "phi_hat_max_final": "u", "phi_hat_bound_held": "", "V1_min_final": "chain", "eps_reached": "",

@@ -233,8 +233,18 @@ def table_row(params, result: dict, loop: str, grid_path: str | None) -> dict:
                    saturated_fraction=m.get("saturated_fraction"))
     for key, col in INDICES:
         row[col] = m.get(key)
+    row.update(oscillation_columns(m))
     row["elapsed_s"] = result.get("elapsed_s")
     return row
+
+
+def oscillation_columns(m: dict) -> dict:
+    """The limit cycle columns of a loop's metrics m: measured z_1 amplitude (m) and frequency (Hz),
+    averaged power, and the describing-function prediction (None without an actuator lag)."""
+    pred = m.get("limit_cycle_predicted") or {}
+    return {"z1_osc_amplitude": m.get("z1_osc_amplitude"), "z1_osc_frequency": m.get("z1_osc_frequency"),
+            "averaged_power": m.get("averaged_power"), "df_z1_amplitude": pred.get("amplitude_z1"),
+            "df_frequency": pred.get("frequency")}
 
 
 def engine_for(workers: int, engine: str | None = None) -> str:
