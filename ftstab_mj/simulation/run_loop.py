@@ -477,6 +477,8 @@ class Simulation:
         """Evaluate every loop's law at z_law (what it sees), record its outputs with the true z,
         advance its state; u -> self._u. False (and the run stopped) when a control is not finite."""
         s, ud = self._s, d.userdata
+        self._rec_t[row] = t  # every loop's t and z records are rows of these (a sample is kept when _inject ends)
+        self._rec_z[:, row] = z
         for i, (law, L, rec, sl, stateful) in enumerate(zip(self.laws, self.loops, self._rec, self.state_slices,
                                                              self._stateful)):
             state = ud[sl]
@@ -490,8 +492,6 @@ class Simulation:
                 self._stop(d, f"diverged at t = {t:.6g} s: the control of loop {L.name!r} is {u}")
                 return False
             self._u[i] = u
-            rec["t"][row] = t
-            rec["z"][row] = z[i]
             rec["u"][row] = u
             rec["u0"][row] = out.u0
             rec["V1"][row] = out.V1
