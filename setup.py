@@ -1,4 +1,4 @@
-"""Build of the optional native kernel (ftstab_mj/simulation/native/kernel.c); all metadata is in pyproject.toml.
+"""Build of the optional native kernel (ftstab_mj/simulation/native/kernel.c, laws.c); all metadata is in pyproject.toml.
 
 The extension is optional: when no C compiler works, setuptools warns and the install goes on
 without it, and ftstab_mj runs the pure NumPy controller (and says so once).
@@ -40,6 +40,8 @@ class BuildPyWithData(build_py):
 
 
 setup(
-    ext_modules=[Extension("ftstab_mj.simulation.native._kernel", ["ftstab_mj/simulation/native/kernel.c"], optional=True)],
+    ext_modules=[Extension("ftstab_mj.simulation.native._kernel",
+                           [f"ftstab_mj/simulation/native/{name}.c" for name in ("kernel", "laws")],
+                           depends=["ftstab_mj/simulation/native/laws.h"], optional=True)],
     cmdclass={"build_ext": BuildExt, "build_py": BuildPyWithData},
 )

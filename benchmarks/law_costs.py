@@ -1,15 +1,18 @@
-"""Cost of every registered control law in the run loop, as a ratio to bare MuJoCo stepping.
+"""Cost of every registered control law in the run loop, on the cart and on the arm, as a ratio to bare
+MuJoCo stepping.
 
-    python benchmarks/law_costs.py [--repeat 5] [--steps 20000] [--r 2]
+    python benchmarks/law_costs.py [--repeat 3] [--steps 10000] [--r 2] [--no-python]
 
-For each law (the shipped comparison's parameters, scenarios/compare/cart_r<r>.toml) and each path it
-can run on (native C callback where kernel.c has its twin, the Python callback always), one
-repetition times Simulation.advance over ``steps`` control samples (period = physics step = 1 ms,
-batches of 1000) and, right after it, mj_step(m, d, nstep) of the same compiled model with no
-callback; the table shows the median CPU-time ratio over the repetitions with its min-max, and the
-extra cost per control sample in microseconds of the controlled run over bare stepping (median of
-(run time - bare time) / samples: the law plus, on the Python path, the run loop's Python callback).
-CPU time of this process: on a shared machine wall time mostly measures the other processes.
+The laws: every entry of the shipped comparisons scenarios/compare/cart_r<r>.toml and field_r<r>.toml
+(their parameters, one row per label). The plants: the cart (r = 2, or the integrating cart at r = 3)
+and the two-joint arm (the same law on both joints; r = 2 only). Each law runs on each path it can take:
+the native C callback (its twin in laws.c) and, unless --no-python, the Python callback (the reference
+path a plugin law takes). One repetition times Simulation.advance over ``steps`` control samples
+(period = physics step = 1 ms, batches of 1000) and, right after it, mj_step(m, d, nstep) of the same
+compiled model with no callback; the table shows the median CPU-time ratio over the repetitions with
+its min-max, and the extra cost per control sample in microseconds over bare stepping (median of (run
+time - bare time) / samples). A run that diverges before its last sample is marked (its time covers
+fewer samples). CPU time of this process: on a shared machine wall time mostly measures the others.
 """
 
 from __future__ import annotations
@@ -44,18 +47,32 @@ def cpu(fn) -> float:
     return time.process_time() - t0
 
 
-def law_run(plant, controller: dict, r: int, steps: int, use_native) -> float:
+def loops_for(plant, controller: dict, r: int) -> list:
+    """One LoopSpec per loop of the plant, all under ``controller``: the cart with the comparisons'
+    disturbance and gain, the arm's joints from 0.2 rad off their set points."""
     spec = ControllerSpec.of(**controller)
-    loop = LoopSpec("cart", z0=(1.0,) + (0.0,) * (r - 1), controller=spec,
-                    disturbance=Signal("sine", 0.0, 0.8, freq=0.5), gain=Signal("sine", 1.0, 0.4, freq=0.3, phase=1.0))
-    sim = Simulation(plant, [loop], STEP, STEP, native=use_native)
+    if plant.model_name.startswith("cart"):
+        return [LoopSpec("cart", z0=(1.0,) + (0.0,) * (r - 1), controller=spec,
+                         disturbance=Signal("sine", 0.0, 0.8, freq=0.5),
+                         gain=Signal("sine", 1.0, 0.4, freq=0.3, phase=1.0))]
+    return [LoopSpec(name, z0=(0.2,) + (0.0,) * (r - 1), controller=spec, ref=0.3 * i)
+            for i, name in enumerate(plant.loop_names)]
+
+
+def law_run(plant, controller: dict, r: int, steps: int, use_native) -> tuple[float, bool]:
+    """(CPU seconds of the controlled run, whether it ran to its last sample)."""
+    sim = Simulation(plant, loops_for(plant, controller, r), STEP, STEP, native=use_native)
+    if use_native is True and sim._native is None:
+        raise RuntimeError("native run asked for but the Python callback was installed")
 
     def go():
         with sim.installed():
             for _ in range(steps // BATCH):
                 sim.advance(BATCH)
+                if sim.stop_reason:
+                    return
 
-    return cpu(go)
+    return cpu(go), not sim.stop_reason
 
 
 def bare(plant, steps: int) -> float:
@@ -65,31 +82,45 @@ def bare(plant, steps: int) -> float:
         return cpu(lambda: mujoco.mj_step(m, d, nstep=steps))
 
 
+def entries(r: int) -> list:
+    """(label, controller) of every law of the shipped comparisons at chain length r, first label kept."""
+    out, seen = [], set()
+    for name in ("cart", "field"):
+        path = ROOT / "scenarios" / "compare" / f"{name}_r{r}.toml"
+        if path.exists():
+            for e in load_comparison(path).laws:
+                if e.label not in seen:
+                    seen.add(e.label)
+                    out.append((e.label, e.controller))
+    return out
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--repeat", type=int, default=5)
-    ap.add_argument("--steps", type=int, default=20000)
+    ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--steps", type=int, default=10000)
     ap.add_argument("--r", type=int, default=2, choices=(2, 3))
+    ap.add_argument("--no-python", action="store_true", help="time the native path only")
     args = ap.parse_args(argv)
-    cmp = load_comparison(ROOT / "scenarios" / "compare" / f"cart_r{args.r}.toml")
-    plant = make_plant("cart" if args.r == 2 else "cart_integrating")
-    print(f"law costs on the cart, r = {args.r}: {args.steps} samples of 1 ms, {args.repeat} repetitions, CPU time")
-    print(f"{'law':<32} {'path':<7} {'x bare (median, min-max)':>26} {'extra us/sample':>16}")
-    for entry in cmp.laws:
-        paths = [False]
-        spec_law = ControllerSpec.of(**entry.controller).build(args.r)
-        if native.use_native("auto", spec_law):
-            paths.insert(0, True)
-        for use_native in paths:
-            ratios, extra = [], []
-            for _ in range(args.repeat):  # A then B in each repetition: a load change hits both
-                t_law = law_run(plant, entry.controller, args.r, args.steps, use_native)
-                t_bare = bare(plant, args.steps)
-                ratios.append(t_law / t_bare)
-                extra.append((t_law - t_bare) / args.steps * 1e6)
-            med = statistics.median(ratios)
-            print(f"{entry.label:<32} {'native' if use_native else 'python':<7} "
-                  f"{med:>10.2f} ({min(ratios):.2f}-{max(ratios):.2f}){'':>6} {statistics.median(extra):>16.2f}")
+    plants = [make_plant("cart" if args.r == 2 else "cart_integrating")] + ([make_plant("arm")] if args.r == 2 else [])
+    print(f"law costs, r = {args.r}: {args.steps} samples of 1 ms, {args.repeat} repetitions, CPU time")
+    print(f"{'law':<32} {'plant':<17} {'path':<7} {'x bare (median, min-max)':>26} {'extra us/sample':>16}")
+    for label, controller in entries(args.r):
+        law = ControllerSpec.of(**controller).build(args.r)
+        paths = ([True] if native.use_native("auto", law) else []) + ([] if args.no_python else [False])
+        for plant in plants:
+            for use_native in paths:
+                ratios, extra, whole = [], [], True
+                for _ in range(args.repeat):  # A then B in each repetition: a load change hits both
+                    t_law, done = law_run(plant, controller, args.r, args.steps, use_native)
+                    t_bare = bare(plant, args.steps)
+                    whole = whole and done
+                    ratios.append(t_law / t_bare)
+                    extra.append((t_law - t_bare) / args.steps * 1e6)
+                med = statistics.median(ratios)
+                note = "" if whole else "  (diverged: fewer samples)"
+                print(f"{label:<32} {plant.model_name:<17} {'native' if use_native else 'python':<7} "
+                      f"{med:>10.2f} ({min(ratios):.2f}-{max(ratios):.2f}){'':>6} {statistics.median(extra):>16.2f}{note}")
     return 0
 
 

@@ -8,7 +8,8 @@ scenario schema's ``[loops.<name>.controller]`` keys, ``ftstab list``, RunInfo/L
 2. in it, subclass :class:`Law`: ``name``, ``summary``, ``params`` (:class:`Param`), ``lyapunov``;
 3. implement ``from_params(r, values)``, ``evaluate(z, state)`` and, if it has a state,
    ``state_size``, ``initial_state`` and ``state_derivative`` (``advance`` if Euler is not exact);
-4. decorate it with ``@register_law``; give it a ``native_code`` only when kernel.c has its twin.
+4. decorate it with ``@register_law``; give it a ``native_code`` (and ``native_params``) only when the C
+   kernel (ftstab_mj/simulation/native/laws.c) has its twin, pinned against this NumPy code by the tests.
 
 The protocol (shapes: z (..., r) chain state, state (..., m) with m = ``law.state_size``):
 
@@ -88,7 +89,9 @@ class Law:
     base_params: ClassVar[tuple[Param, ...]] = ()  # of the controller it is built on (LoopInfo.hong)
     params: ClassVar[tuple[Param, ...]] = ()  # its own (LoopInfo.law_params)
     lyapunov: ClassVar[bool] = False  # V1, dV1_dzr are a Lyapunov function and its gradient
-    native_code: ClassVar[int | None] = None  # the law's number in kernel.c (None: no native twin)
+    # The law's number in the C kernel (laws.h), declared by the class itself (a subclass that overrides the
+    # maths does not inherit the twin), with :meth:`native_params`; None: no twin, the run loop's Python path.
+    native_code: ClassVar[int | None] = None
     # What the law guarantees: metrics, report, viewers, stages and expectations read these, never its name.
     # time_bound: Theorem 1's envelope and T(z0) = V1(z0)^(1 - alpha) / (c (1 - alpha)) hold, from the
     # certificate of ``hong`` (c, alpha), whenever :meth:`bound_holds` says so for the plant's true bounds.
@@ -156,6 +159,11 @@ class Law:
     def param_values(self) -> dict:
         """The law's own parameter values (LoopInfo.law_params)."""
         return {p.name: getattr(self, p.name) for p in self.params}
+
+    def native_params(self) -> dict:
+        """The numbers of the law's C twin: {field of the kernel's law record (laws.h ft_law): a number or a
+        sequence}, usually {"par": (...)} in the order laws.c reads them. Asked only when ``native_code`` is set."""
+        return {}
 
 
 # -- the registry ----------------------------------------------------------------------------------

@@ -165,6 +165,8 @@ class Simulation:
         self._rec = None
         self._row = -1
         self._warnings = [self.data.warning[int(k)] for k in _DIVERGENCE_WARNINGS]  # live views of d.warning
+        # the laws with a state (a stateless law's advance is not called: it would write nothing)
+        self._stateful = tuple(sl.stop > sl.start for sl in self.state_slices)
         self._native = self._native_run(native)
         # one object, so "is it installed" is an identity test
         self.callback = self._control if self._native is None else self._native.callback
@@ -380,7 +382,7 @@ class Simulation:
                     step(m, d)
 
     def _warning_count(self) -> int:
-        return sum(w.number for w in self._warnings)
+        return sum([w.number for w in self._warnings])
 
     def _warning_text(self) -> str:
         return ", ".join(f"{k.name} x{w.number}" for k, w in zip(_DIVERGENCE_WARNINGS, self._warnings) if w.number)
@@ -436,7 +438,7 @@ class Simulation:
         row = self._row + 1
         t = self._t[row]
         z = self._read_z(d, row)
-        zmax = float(np.max(np.abs(z)))
+        zmax = float(np.abs(z).max())  # the method: np.max's dispatch costs as much as the maximum here
         if not zmax <= self.divergence_limit:  # also catches NaN
             self._stop(d, f"diverged at t = {t:.6g} s: max |z| = {zmax:.3g} is beyond the divergence "
                           f"limit {self.divergence_limit:g}")
@@ -475,7 +477,10 @@ class Simulation:
         """Evaluate every loop's law at z_law (what it sees), record its outputs with the true z,
         advance its state; u -> self._u. False (and the run stopped) when a control is not finite."""
         s, ud = self._s, d.userdata
-        for i, (law, L, rec, sl) in enumerate(zip(self.laws, self.loops, self._rec, self.state_slices)):
+        self._rec_t[row] = t  # every loop's t and z records are rows of these (a sample is kept when _inject ends)
+        self._rec_z[:, row] = z
+        for i, (law, L, rec, sl, stateful) in enumerate(zip(self.laws, self.loops, self._rec, self.state_slices,
+                                                             self._stateful)):
             state = ud[sl]
             out = law.evaluate(z_law[i], state)
             if L.disturbance.state_dependent:  # worst case: held over the period with this sample's dV1/dz_r
@@ -487,15 +492,14 @@ class Simulation:
                 self._stop(d, f"diverged at t = {t:.6g} s: the control of loop {L.name!r} is {u}")
                 return False
             self._u[i] = u
-            rec["t"][row] = t
-            rec["z"][row] = z[i]
             rec["u"][row] = u
             rec["u0"][row] = out.u0
             rec["V1"][row] = out.V1
             rec["dV1_dzr"][row] = out.dV1_dzr
             rec["phi_hat"][row] = out.phi_hat  # the law's (robust: phibar / gamma_m), as the ideal chain logs it
             rec["gamma_hat"][row] = out.gamma_hat
-            ud[sl] = law.advance(z_law[i], state, out, self.period)
+            if stateful:
+                ud[sl] = law.advance(z_law[i], state, out, self.period)
         return True
 
     def _actuate(self, d, row: int) -> None:
@@ -527,9 +531,8 @@ class Simulation:
         phi, gamma = self.plant.true_chain(m, d, u, self._gain[s], self._inj[s])
         if self._R is not None:  # the error chain's: z_r' = q^(r) - ref^(r)
             phi = phi - self._R[row, :, -1]
-        for i, rec in enumerate(self._rec):
-            rec["phi"][row] = phi[i]
-            rec["gamma"][row] = gamma[i]
+        self._rec_scalars["phi"][:, row] = phi  # every loop's at once (each loop's record is a row of it)
+        self._rec_scalars["gamma"][:, row] = gamma
         self._pos[row] = d.xpos[self._body_ids]
         self._quat[row] = d.xquat[self._body_ids]
         self._row = row

@@ -66,6 +66,7 @@ class AdaptiveSuperTwisting(Law):
     alpha0: float | None = None
     u_continuous = True  # -alpha |s|^(1/2) sign s + v, v integrates the relay: continuous
     name = "adaptive_super_twisting"
+    native_code = 12
     summary = ("super-twisting with adapted gains, alpha' = omega1 sqrt(gamma1/2) sign(|s| - mu), beta = 2 epsilon alpha "
                "(Shtessel, Taleb, Plestan 2012, Automatica 48:759)")
     params = (
@@ -127,3 +128,7 @@ class AdaptiveSuperTwisting(Law):
 
     def param_values(self) -> dict:
         return {"surface": list(self.surface), **{p.name: getattr(self, p.name) for p in self.params[1:]}}
+
+    def native_params(self) -> dict:
+        return {"par": (self.omega1, self.gamma1, self.mu_band, self.alpha_min, self.epsilon, self.eta_floor,
+                        *self.surface)}

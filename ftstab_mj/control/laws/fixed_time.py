@@ -55,6 +55,7 @@ class FixedTime(Law):
     ft_b: float
     switching: float
     name = "fixed_time"
+    native_code = 10
     summary = ("nonsingular sliding mode with a fixed-time surface, z_1' = -a |z_1|^(2/3) - b |z_1|^(4/3) on it, r = 2; "
                "bound 3 pi / (2 sqrt(ab)) (Polyakov 2012, IEEE TAC 57:2106, Lemma 1)")
     params = (
@@ -88,6 +89,9 @@ class FixedTime(Law):
     def surface(self, z):
         z = chain_state(z, 2)
         return z[..., 0] + self.inverse(z[..., 1])
+
+    def native_params(self) -> dict:
+        return {"par": (self.ft_a, self.ft_b, self.switching)}
 
     def evaluate(self, z, state=None) -> LawOutput:
         z = chain_state(z, 2)

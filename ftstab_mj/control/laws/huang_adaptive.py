@@ -44,6 +44,7 @@ class HuangAdaptive(Law):
     Kbar: float
     K0: float = 0.0
     name = "huang_adaptive"
+    native_code = 13
     summary = ("adaptive sliding mode whose gain never decreases, u = -K sign s, K' = Kbar |s| "
                "(Huang, Kuo, Chang 2008, IEEE TSMC-B 38:534)")
     params = (
@@ -85,3 +86,6 @@ class HuangAdaptive(Law):
 
     def param_values(self) -> dict:
         return {"surface": list(self.surface), "Kbar": self.Kbar, "K0": self.K0}
+
+    def native_params(self) -> dict:
+        return {"par": (self.Kbar, *self.surface)}

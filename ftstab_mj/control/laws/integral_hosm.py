@@ -61,6 +61,7 @@ class IntegralHOSM(Law):
     switching: float
     t_hold: float | None = None
     name = "integral_hosm"
+    native_code = 11
     summary = ("integral sliding mode around a minimum-energy control reaching 0 at t_final "
                "(Laghrouche, Plestan, Glumineau 2007, Automatica 43:531)")
     params = (
@@ -90,6 +91,9 @@ class IntegralHOSM(Law):
     @property
     def state_size(self) -> int:
         return 2
+
+    def native_params(self) -> dict:
+        return {"par": (self.t_final, self.switching, self.t_hold, *self.gains)}
 
     def nominal(self, z, tau):
         """u_nom at the time since the start tau (...), shape (...)."""

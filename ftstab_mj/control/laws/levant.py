@@ -29,6 +29,7 @@ u0, gamma_hat and phi_hat are NaN; no time bound applies.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -68,6 +69,9 @@ class _Levant(Law):
     def from_params(cls, r, values):
         return cls(r, values["alpha"])
 
+    def native_params(self) -> dict:
+        return {"par": (self.alpha, *BETA[self.r], *self.exponents)}
+
     def evaluate(self, z, state=None) -> LawOutput:
         u = -self.alpha * self.psi(z)
         nan = np.full(np.shape(u), np.nan)
@@ -81,17 +85,24 @@ class LevantNested(_Levant):
 
     name = "levant_nested"
     summary = "Levant's nested r-sliding controller, u = -alpha sign(psi_{r-1}) (Levant 2003, IJC 76:924)"
+    native_code = 3
+
+    @cached_property
+    def exponents(self) -> tuple:
+        """(q/(r-i+1) for i = 1..r-1, then (r-i)/q for i = 1..r-1): the powers of psi's recursion."""
+        r, q = self.r, NESTED_Q[self.r]
+        return tuple(q / (r - i + 1) for i in range(1, r)) + tuple((r - i) / q for i in range(1, r))
 
     def psi(self, z):
         """sign(psi_{r-1}(z)) in {-1, 0, 1}, shape (...)."""
         z = _chain_state(z, self.r)
-        r, q, beta = self.r, NESTED_Q[self.r], BETA[self.r]
+        r, beta, e = self.r, BETA[self.r], self.exponents
         a = np.abs(z)
         psi = z[..., 0]
         acc = np.zeros(z.shape[:-1])  # sum_{j<=i} |z_j|^(q/(r-j+1))
         for i in range(1, r):
-            acc = acc + a[..., i - 1] ** (q / (r - i + 1))
-            psi = z[..., i] + beta[i - 1] * acc ** ((r - i) / q) * np.sign(psi)
+            acc = acc + a[..., i - 1] ** e[i - 1]
+            psi = z[..., i] + beta[i - 1] * acc ** e[r - 2 + i] * np.sign(psi)
         return np.sign(psi)
 
 
@@ -102,16 +113,22 @@ class LevantQuasiContinuous(_Levant):
 
     name = "levant_qc"
     summary = "Levant's quasi-continuous r-sliding controller, u = -alpha Psi_{r-1} (Levant 2005, IEEE TAC 50:1812)"
+    native_code = 4
+
+    @cached_property
+    def exponents(self) -> tuple:
+        """(r-i)/(r-i+1) for i = 1..r-1: the powers of Psi's recursion."""
+        return tuple((self.r - i) / (self.r - i + 1) for i in range(1, self.r))
 
     def psi(self, z):
         """Psi_{r-1}(z) in [-1, 1], 0 where its denominator vanishes, shape (...)."""
         z = _chain_state(z, self.r)
-        r, beta = self.r, BETA[self.r]
+        r, beta, e = self.r, BETA[self.r], self.exponents
         phi = z[..., 0]
         N = np.abs(phi)
         Psi = np.sign(phi)  # phi_0 / N_0, 0 at N_0 = 0
         for i in range(1, r):
-            term = beta[i - 1] * N ** ((r - i) / (r - i + 1))
+            term = beta[i - 1] * N ** e[i - 1]
             phi = z[..., i] + term * Psi
             N = np.abs(z[..., i]) + term
             with np.errstate(invalid="ignore", divide="ignore"):

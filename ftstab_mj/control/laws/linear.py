@@ -43,6 +43,7 @@ class LinearLaw(Law):
     params = (Param("poles", tuple[float, ...], "closed-loop poles, real, one per integrator", "1/s", _poles),)
     lyapunov = True
     u_continuous = True
+    native_code = 5
     K: np.ndarray = field(init=False, repr=False, compare=False)
     P: np.ndarray = field(init=False, repr=False, compare=False)
 
@@ -72,6 +73,9 @@ class LinearLaw(Law):
         if law.r != r:
             raise ParameterError("poles", f"{r} poles (one per integrator, r = {r})", law.poles)
         return law
+
+    def native_params(self) -> dict:
+        return {"par": (*self.K, *self.P.ravel())}  # K (r,), P (r, r) row-major
 
     def evaluate(self, z, state=None) -> LawOutput:
         z = np.asarray(z, dtype=float)

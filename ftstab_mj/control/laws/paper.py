@@ -77,6 +77,13 @@ class _HongLaw(Law):
         h = self.hong
         return {"r": h.r, "k": h.k, "gains": list(h.gains), "form": h.form}
 
+    def native_params(self) -> dict:
+        """Hong's controller (exponents as HongController computed them) and the law's own parameters,
+        by their names in the kernel's record."""
+        h = self.hong
+        own = {k: v for k, v in self.param_values().items() if k != "discretization"}  # the record's `implicit`
+        return {"simplified": int(h.form == "simplified"), "gains": h.gains, "beta": h.beta, "expo": h.expo, **own}
+
     def evaluate(self, z, state) -> LawOutput:
         return self.output(z)
 

@@ -128,6 +128,7 @@ class SuperTwisting(_SurfaceLaw):
     k1: float = 0.0
     k2: float = 0.0
     name = "super_twisting"
+    native_code = 6
     summary = ("super-twisting on s = z_r + sum c_i z_i, u = -k1 |s|^(1/2) sign s + v, v' = -k2 sign s "
                "(Levant 1993; Moreno-Osorio 2012)")
     params = (
@@ -190,6 +191,9 @@ class SuperTwisting(_SurfaceLaw):
     def param_values(self) -> dict:
         return {"surface": list(self.surface), "k1": self.k1, "k2": self.k2, "discretization": self.discretization}
 
+    def native_params(self) -> dict:
+        return {"par": (self.k1, self.k2, *self.surface)}
+
 
 @register_law
 @dataclass(frozen=True)
@@ -200,6 +204,7 @@ class PlestanAdaptive(_SurfaceLaw):
     mu: float = 0.0
     eps: float = 0.0
     name = "plestan_adaptive"
+    native_code = 7
     summary = ("adaptive sliding mode on s = z_r + sum c_i z_i, u = -K sign s, K' = Kbar |s| sign(|s| - eps) "
                "(Plestan et al. 2010, IJC 83:1907)")
     params = (
@@ -243,3 +248,6 @@ class PlestanAdaptive(_SurfaceLaw):
     def param_values(self) -> dict:
         return {"surface": list(self.surface), "Kbar": self.Kbar, "mu": self.mu, "eps": self.eps,
                 "discretization": self.discretization}
+
+    def native_params(self) -> dict:
+        return {"par": (self.Kbar, self.mu, self.eps, *self.surface)}

@@ -70,6 +70,7 @@ class Terminal(Law):
     ratio: float
     switching: float
     name = "terminal"
+    native_code = 9
     summary = ("nonsingular terminal sliding mode, s = z_1 + |z_2|^(p/q) sign(z_2) / beta, r = 2 "
                "(Feng, Yu, Man 2002, Automatica 38:2159)")
     params = (
@@ -95,6 +96,9 @@ class Terminal(Law):
     def surface(self, z):
         z = chain_state(z, 2)
         return z[..., 0] + sig(z[..., 1], self.ratio) / self.beta
+
+    def native_params(self) -> dict:
+        return {"par": (self.beta, self.ratio, self.switching)}
 
     def evaluate(self, z, state=None) -> LawOutput:
         z = chain_state(z, 2)

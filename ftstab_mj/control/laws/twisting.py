@@ -55,6 +55,7 @@ class Twisting(Law):
     r1: float
     r2: float
     name = "twisting"
+    native_code = 8
     summary = "twisting algorithm, u = -r1 sign(z_1) - r2 sign(z_2), r1 > r2 > 0, r = 2 (Levant 1993, IJC 58:1247)"
     params = (
         Param("r1", float, "twisting gain on sign(z_1), r1 > r2", "chain units, m/s^2 or rad/s^2", positive),
@@ -73,6 +74,9 @@ class Twisting(Law):
     @classmethod
     def from_params(cls, r, values):
         return cls(r, values["r1"], values["r2"])
+
+    def native_params(self) -> dict:
+        return {"par": (self.r1, self.r2)}
 
     def evaluate(self, z, state=None) -> LawOutput:
         z = np.asarray(z, dtype=float)

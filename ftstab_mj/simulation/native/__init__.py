@@ -21,7 +21,9 @@ import numpy as np
 from ftstab_mj.control.law import LawOutput
 from ftstab_mj.config.errors import FtstabError, ParameterError
 
-RMAX = 8  # longest chain the kernel handles (FT_RMAX in kernel.c)
+RMAX = 8  # longest chain the kernel handles (FT_RMAX in laws.h)
+MAXSTATE = 4  # numbers of state a law may keep (FT_MAXSTATE)
+NPAR = RMAX + RMAX * RMAX  # FT_NPAR
 RK4_SUBSTEPS = 8  # advance_phi_hat's default number of sub-steps in the transition band
 
 _dbl = ctypes.POINTER(ctypes.c_double)
@@ -32,7 +34,7 @@ class NativeUnavailable(FtstabError, RuntimeError):
 
 
 class FtLaw(ctypes.Structure):
-    """Mirror of ft_law in kernel.c (same field order and types)."""
+    """Mirror of ft_law in laws.h (same field order and types)."""
 
     _fields_ = [
         ("r", ctypes.c_int32), ("simplified", ctypes.c_int32), ("law", ctypes.c_int32), ("substeps", ctypes.c_int32),
@@ -40,6 +42,8 @@ class FtLaw(ctypes.Structure):
         ("phibar", ctypes.c_double), ("gamma_m", ctypes.c_double),
         ("kappa", ctypes.c_double), ("delta", ctypes.c_double), ("rate", ctypes.c_double),
         ("eta", ctypes.c_double), ("eps", ctypes.c_double),
+        ("nstate", ctypes.c_int32), ("implicit", ctypes.c_int32), ("period", ctypes.c_double),
+        ("par", ctypes.c_double * NPAR),
     ]
 
 
@@ -69,6 +73,8 @@ def _find_library() -> tuple[ctypes.CDLL | None, str]:
     lib.ft_simulate_chain.argtypes = [p, ctypes.c_int64, p, p, ctypes.c_int64, ctypes.c_int32, ctypes.c_double,
                                       p, p, p, p, p, p, ctypes.c_int32]
     lib.ft_simulate_chain.restype = None
+    lib.ft_law_sample.argtypes = [p, ctypes.c_int64, p, p, ctypes.c_double, p]
+    lib.ft_law_sample.restype = None
     return lib, ""
 
 
@@ -110,29 +116,37 @@ def _unsupported(law) -> str:
         return f"the C kernel does not know the law type {type(law).__name__}"
     if law.r > RMAX:
         return f"the C kernel handles r <= {RMAX}, got r = {law.r}"
-    if getattr(law, "discretization", "explicit") != "explicit":
-        return f"the C kernel has only the explicit discretization, not {law.discretization!r}"
+    if law.state_size > MAXSTATE:
+        return f"the C kernel keeps at most {MAXSTATE} numbers of state per law, {law.name!r} has {law.state_size}"
     return ""
 
 
+_ARRAYS = {name for name, kind in FtLaw._fields_ if issubclass(kind, ctypes.Array)}
+
+
 def pack_law(law, substeps: int = RK4_SUBSTEPS) -> FtLaw:
-    """The kernel's copy of ``law`` (exponents computed by HongController, so both paths share them)."""
+    """The kernel's copy of ``law``: its declared ``native_code`` and ``native_params()`` (FtLaw fields
+    by name, numbers computed once in Python, so both paths share them: Hong's exponents, Levant's)."""
     why = _unsupported(law)
     if why:
         raise NativeUnavailable(why)
-    h = law.hong
-    p = FtLaw(r=h.r, simplified=int(h.form == "simplified"), substeps=substeps)
-    p.gains[: h.r] = h.gains
-    p.beta[: h.r] = h.beta.tolist()
-    p.expo[: h.r] = h.expo.tolist()
-    p.law = law.native_code
-    fields = {f[0] for f in FtLaw._fields_}
-    for name, value in law.param_values().items():  # the law's own parameters, by name (FtLaw fields)
-        if name == "discretization":  # explicit (checked above): the kernel's only one
-            continue
-        if name not in fields:  # a ctypes Structure would silently keep an unknown attribute
+    p = FtLaw(r=law.r, law=law.native_code, substeps=substeps, nstate=law.state_size,
+              implicit=int(getattr(law, "discretization", "explicit") == "implicit"),
+              period=getattr(law, "period", None) or 0.0)
+    for name, value in law.native_params().items():
+        if name not in FtLaw.__dict__:  # a ctypes Structure would silently keep an unknown attribute
             raise NativeUnavailable(f"the C kernel's law record has no field {name!r} (law {law.name!r})")
-        setattr(p, name, value)
+        if name in _ARRAYS:
+            values = [float(v) for v in np.ravel(value)]
+            if len(values) > len(getattr(p, name)):
+                raise NativeUnavailable(f"law {law.name!r}: {len(values)} numbers for the kernel's {name!r}, "
+                                        f"which holds {len(getattr(p, name))}")
+            getattr(p, name)[: len(values)] = values
+        else:
+            setattr(p, name, value)
+    if p.implicit and not p.period > 0.0:
+        raise NativeUnavailable(f"law {law.name!r}: the implicit discretization needs the control period "
+                                "(law.for_period(h))")
     return p
 
 
@@ -158,6 +172,22 @@ def law_output(law, z, phi_hat=0.0) -> LawOutput:
     p = pack_law(law)
     lib.ft_law_output(ctypes.byref(p), int(np.prod(batch, dtype=np.int64)), _c(z), _c(ph), *map(_c, out))
     return LawOutput(*out)
+
+
+def law_sample(law, z, state, h: float) -> tuple[LawOutput, np.ndarray]:
+    """Native ``law.evaluate(z, state)`` and ``law.advance(z, state, out, h)`` for a batch: z (n, r),
+    state (n, state_size). Returns (LawOutput with fields (n,), the state one period h later (n, state_size))."""
+    lib = _require()
+    p = pack_law(law)
+    z = np.ascontiguousarray(z, dtype=float)
+    n = len(z)
+    if z.shape != (n, law.r):
+        raise ParameterError("z", f"an array (n, r = {law.r})", z.shape)
+    state = np.array(np.broadcast_to(np.asarray(state, dtype=float), (n, law.state_size)), dtype=float, order="C")
+    out = [np.empty(n) for _ in LawOutput._fields]
+    ptrs = (ctypes.c_void_p * 6)(*map(_c, out))
+    lib.ft_law_sample(ctypes.byref(p), n, _c(z), _c(state), float(h), ptrs)
+    return LawOutput(*out), state
 
 
 def advance_phi_hat(law, V1, phi_hat, h: float, substeps: int = RK4_SUBSTEPS) -> np.ndarray:

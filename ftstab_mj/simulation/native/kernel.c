@@ -1,4 +1,5 @@
-/* Native kernel of the paper's controllers: the C twin of the NumPy reference in ftstab_mj/control/.
+/* Native kernel: the C twin of the NumPy reference in ftstab_mj/control/ and ftstab_mj/simulation/
+ * (the ideal chain, the loop stages, the run loop's control callback); the laws are in laws.c.
  *
  * Loaded with ctypes (ftstab_mj/simulation/native/__init__.py); the Python module init at the bottom only
  * exists so that setuptools can build this file as an ordinary (optional) extension.
@@ -16,158 +17,9 @@
 #include <pthread.h>
 #endif
 
-#define FT_RMAX 8
+#include "laws.h"
+
 #define FT_MAXLOOPS 8 /* loops of one native run */
-
-enum { FT_NOMINAL = 0, FT_ROBUST = 1, FT_ADAPTIVE = 2 };
-
-/* One law: Hong's controller (r, form, gains, beta, expo) and the law on top of it.
- * The layout is mirrored by the ctypes Structure FtLaw in __init__.py: keep them in sync. */
-typedef struct {
-    int32_t r;          /* chain length, 1..FT_RMAX */
-    int32_t simplified; /* 0: full form, 1: simplified form (Proposition 1) */
-    int32_t law;        /* FT_NOMINAL | FT_ROBUST | FT_ADAPTIVE */
-    int32_t substeps;   /* RK4 sub-steps of advance_phi_hat in the transition band */
-    double gains[FT_RMAX];
-    double beta[FT_RMAX];
-    double expo[FT_RMAX];
-    double phibar, gamma_m;                  /* robust */
-    double kappa, delta, rate, eta, eps;     /* adaptive */
-} ft_law;
-
-/* One evaluation of a law: the fields of LawOutput. */
-typedef struct {
-    double u, u0, V1, dV1_dzr, gamma_hat, phi_hat;
-} ft_out;
-
-/* np.sign: -1, 0, +1, NaN for NaN. */
-static inline double np_sign(double a) {
-    return a > 0.0 ? 1.0 : (a < 0.0 ? -1.0 : (a == 0.0 ? 0.0 : a));
-}
-
-/* |a|^p, without pow where NumPy does without it too (its power has fast paths for these
- * exponents): 0^p = 0 (p > 0), x^1 = x (the full form's first exponent), x^0.5 = sqrt(x) and
- * x^2 = x x (the adaptive law with eta = 0.5, the default, in advance_phi: 4x cheaper). */
-static inline double abs_pow(double a, double p) {
-    double m = fabs(a);
-    if (m == 0.0 || p == 1.0) return m;
-    if (p == 0.5) return sqrt(m);
-    if (p == 2.0) return m * m;
-    return pow(m, p);
-}
-
-/* np.maximum (NaN propagates, unlike fmax). */
-static inline double np_maximum(double a, double b) {
-    return (a != a || a >= b) ? a : b;
-}
-
-/* Hong's controller at one state z (r,): u0, V1 and dV1/dz_r (hong.py HongController.evaluate).
- * |a|^(b+1) in W is computed as |a|^b * |a| from the |a|^b the recursion already has: one rounding
- * more than NumPy's pow(|a|, b+1) (relative 2e-16), for 3 pow calls less per sample at r = 2. */
-static void hong_eval(const ft_law *L, const double *z, double *u0, double *V1, double *dV) {
-    const int r = L->r;
-    double v = 0.0;          /* v_i */
-    double pv = 0.0;         /* |v_i|^beta_i (full form) */
-    double V = 0.0;
-    double dv = 0.0;
-    for (int i = 0; i < r; i++) {
-        const double b = L->beta[i], zi = z[i];
-        double s, W;
-        if (L->simplified) {
-            s = zi - v;
-            /* W(z, a, 1) = (|z|^2 - |a|^2)/2 - a (z - a) */
-            W = (fabs(zi) * fabs(zi) - fabs(v) * fabs(v)) / 2.0 - (np_sign(v) * fabs(v)) * (zi - v);
-            if (i == r - 1) dv = zi - v;
-        } else {
-            const double pz = abs_pow(zi, b);
-            pv = abs_pow(v, b);
-            const double sz = np_sign(zi) * pz, sv = np_sign(v) * pv;
-            s = sz - sv;
-            W = (pz * fabs(zi) - pv * fabs(v)) / (b + 1.0) - sv * (zi - v);
-            if (i == r - 1) dv = sz - sv;
-        }
-        V = V + W;
-        v = -L->gains[i] * (np_sign(s) * abs_pow(s, L->expo[i]));
-    }
-    *u0 = v;
-    *V1 = V;
-    *dV = dv;
-}
-
-/* The law at z (r,) with adaptive state phi_hat (laws.py *.output). */
-static void law_eval(const ft_law *L, const double *z, double phi_hat, ft_out *o) {
-    double u0, V1, dV;
-    hong_eval(L, z, &u0, &V1, &dV);
-    double g, p;
-    if (L->law == FT_ROBUST) {
-        g = 1.0 / L->gamma_m;
-        p = L->phibar / L->gamma_m;
-    } else if (L->law == FT_ADAPTIVE) {
-        g = L->kappa + L->delta * fabs(u0);
-        p = phi_hat;
-    } else {
-        g = 1.0;
-        p = 0.0;
-    }
-    o->u = L->law == FT_NOMINAL ? u0 : g * u0 + p * np_sign(u0);
-    o->u0 = u0;
-    o->V1 = V1;
-    o->dV1_dzr = dV;
-    o->gamma_hat = g;
-    o->phi_hat = p;
-}
-
-/* nu_eps(V1) of the adaptive law (laws.py AdaptiveLaw.nu). */
-static inline double adaptive_nu(const ft_law *L, double V1) {
-    const double x = (fabs(V1) - 0.75 * L->eps) / (0.25 * L->eps);
-    return 0.5 + 0.5 * x / np_maximum(1.0, fabs(x));
-}
-
-static inline double band_rhs(double a, double b, double y, double eta) {
-    return a - b * abs_pow(np_maximum(y, 0.0), eta);
-}
-
-/* phi_hat after one period h with V1 held (laws.py advance_phi_hat): exact ramp or finite-time
- * decay outside the transition band of nu, RK4 with L->substeps sub-steps inside it. */
-static double advance_phi(const ft_law *L, double V1, double phi_hat, double h) {
-    if (L->law != FT_ADAPTIVE) return phi_hat + 0.0;
-    const double phi = np_maximum(phi_hat, 0.0);
-    const double nu = adaptive_nu(L, V1);
-    const double eta = L->eta;
-    if (nu >= 1.0) return phi + L->rate * h;
-    if (!(nu > 0.0 && nu < 1.0)) {
-        return abs_pow(np_maximum(0.0, abs_pow(phi, 1.0 - eta) - (1.0 - eta) * h), 1.0 / (1.0 - eta));
-    }
-    const double a = L->rate * nu, b = 1.0 - nu, dt = h / L->substeps;
-    double x = phi;
-    for (int s = 0; s < L->substeps; s++) {
-        const double k1 = band_rhs(a, b, x, eta);
-        const double k2 = band_rhs(a, b, x + 0.5 * dt * k1, eta);
-        const double k3 = band_rhs(a, b, x + 0.5 * dt * k2, eta);
-        const double k4 = band_rhs(a, b, x + dt * k3, eta);
-        x = np_maximum(0.0, x + dt / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4));
-    }
-    return x;
-}
-
-/* ---- batched entry points (ctypes) ------------------------------------------------------------ */
-
-/* law output for n states: z (n, r) row-major, phi_hat (n,); outputs (n,) each. */
-void ft_law_output(const ft_law *L, int64_t n, const double *z, const double *phi_hat, double *u,
-                   double *u0, double *V1, double *dV, double *gamma_hat, double *phi_hat_out) {
-    ft_out o;
-    for (int64_t k = 0; k < n; k++) {
-        law_eval(L, z + k * L->r, phi_hat[k], &o);
-        u[k] = o.u; u0[k] = o.u0; V1[k] = o.V1; dV[k] = o.dV1_dzr;
-        gamma_hat[k] = o.gamma_hat; phi_hat_out[k] = o.phi_hat;
-    }
-}
-
-/* advance_phi_hat for n states: V1, phi_hat, out (n,). */
-void ft_advance_phi_hat(const ft_law *L, int64_t n, const double *V1, const double *phi_hat, double h,
-                        double *out) {
-    for (int64_t k = 0; k < n; k++) out[k] = advance_phi(L, V1[k], phi_hat[k], h);
-}
 
 /* An input of the ideal chain (phi or gamma): either a table over the sub-step instants
  * (values[step * substeps + s], the same for every trajectory) or a state-dependent signal
@@ -209,7 +61,7 @@ static void *chain_run(void *arg) {
     for (int64_t k = 0; k < J->nsteps; k++) {
         for (int64_t j = J->j0; j < J->j1; j++) {
             double *x = J->z + j * r, y[FT_RMAX];
-            law_eval(L, x, J->phi_hat[j], &o);
+            ft_law_eval(L, x, J->phi_hat + j, &o);
             const int64_t row = k * n + j;
             for (int i = 0; i < r; i++) J->zs[row * r + i] = x[i];
             J->rec[0][row] = o.u; J->rec[1][row] = o.u0; J->rec[2][row] = o.V1; J->rec[3][row] = o.dV1_dzr;
@@ -226,7 +78,7 @@ static void *chain_run(void *arg) {
                 }
                 for (int i = 0; i < r; i++) x[i] = y[i];
             }
-            J->phi_hat[j] = advance_phi(L, o.V1, J->phi_hat[j], J->period);
+            J->phi_hat[j] = ft_advance_phi(L, o.V1, J->phi_hat[j], J->period);
         }
     }
     return NULL;
@@ -567,7 +419,7 @@ typedef struct {
     const int32_t *phi_state;    /* (n,) 1 when phi is state dependent (then given by state_phi[i]) */
     const ft_input *state_phi;   /* (n,) */
     const double *force_factor;  /* (n,) */
-    const int32_t *state_adr;    /* (n,) userdata index of loop i's law state (phi_hat), -1: no state */
+    const int32_t *state_adr;    /* (n,) userdata index of loop i's law state (laws[i].nstate numbers), -1: none */
     double period, h, divergence_limit;
     /* the batch (arrays (nsteps, n) unless said) */
     double t0;                   /* time of its first step */
@@ -650,9 +502,9 @@ static void run_sample(ft_run *R, const void *m, void *d, int64_t s) {
     for (int i = 0; i < n; i++) {
         const ft_law *L = &R->laws[i];
         const int32_t adr = R->state_adr[i];
-        const double ph = adr >= 0 ? R->userdata[adr] : 0.0;
+        double *state = adr >= 0 ? R->userdata + adr : NULL;
         const double *zi = z + i * FT_RMAX;
-        law_eval(L, zlaw + i * FT_RMAX, ph, &o);
+        ft_law_eval(L, zlaw + i * FT_RMAX, state, &o);
         if (R->phi_state[i]) { /* worst case: held over the period with this sample's dV1/dz_r */
             const double value = input_at(&R->state_phi[i], 0, o.dV1_dzr);
             for (int64_t k = s; k < s + N; k++) {
@@ -673,7 +525,7 @@ static void run_sample(ft_run *R, const void *m, void *d, int64_t s) {
         for (int j = 0; j < L->r; j++) R->rec_z[at * L->r + j] = zi[j];
         R->rec[0][at] = o.u; R->rec[1][at] = o.u0; R->rec[2][at] = o.V1; R->rec[3][at] = o.dV1_dzr;
         R->rec[4][at] = o.phi_hat; R->rec[5][at] = o.gamma_hat; /* the law's phi_hat, as sim.py logs it */
-        if (adr >= 0) R->userdata[adr] = advance_phi(L, o.V1, ph, R->period);
+        if (state) ft_law_advance(L, zlaw + i * FT_RMAX, state, &o, R->period);
     }
     R->rec_t[row] = t;
     for (int i = 0; i < n; i++) {

@@ -196,8 +196,6 @@ def unsupported(plant, laws, loops, integrator: str) -> str:
         why = native._unsupported(law)
         if why:
             return why
-        if law.state_size > 1:
-            return f"the native callback keeps at most one state per law, {law.name!r} has {law.state_size}"
     return ""
 
 
