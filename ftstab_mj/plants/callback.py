@@ -35,6 +35,7 @@ _claim = threading.Condition()  # guards the three below; notified when a claim 
 _owners: list[tuple[object, threading.Thread]] = []  # the runs whose callback is installed, in claim order
 _shared = False  # the installed callback serves several runs (the native kernel's)
 _previous = None  # the callback installed before the first claim, put back when the last one leaves
+_compilers: list[tuple] = []  # (thread, whether it cleared the slot) of each compile block (control_callback(None))
 
 
 class CallbackBusy(FtstabError, RuntimeError):
@@ -88,18 +89,21 @@ def control_callback(callback, owner=None, shared: bool = False):
     the slot (None, to compile a model) from another thread; the run's own thread may clear it.
     ``shared``: ``callback`` serves several runs at once (it finds each call's run itself), so runs
     installing the same shared callback hold the slot together, and clearing it is a no-op meanwhile.
+    While another thread compiles (a None block), a Python callback is not installed either.
     """
     global _shared, _previous, _exclusive_waiters
     me = threading.current_thread()
     wait = getattr(_waiting, "on", False)
+    compiling = callback is None and owner is None
     with _claim:
         while True:
             install, refusal = _admit(callback, owner, shared, me)
-            if refusal is None and not (wait and shared and _exclusive_waiters and install is False and owner):
+            fair = not (wait and shared and _exclusive_waiters and _owners)  # shared runs queue behind a Python one
+            if refusal is None and fair:
                 break
             if not wait:
                 raise refusal
-            exclusive = not shared
+            exclusive = not shared and not compiling
             _exclusive_waiters += exclusive
             try:
                 _claim.wait()
@@ -110,6 +114,9 @@ def control_callback(callback, owner=None, shared: bool = False):
             _shared = shared
         if owner is not None:
             _owners.append((owner, me))
+        if compiling:
+            entry = (me, install)
+            _compilers.append(entry)
     try:
         if not install:
             yield
@@ -122,30 +129,42 @@ def control_callback(callback, owner=None, shared: bool = False):
             if owner is None:
                 mujoco.set_mjcb_control(previous)
     finally:
-        if owner is not None:
-            with _claim:
+        with _claim:
+            if owner is not None:
                 _owners[:] = [c for c in _owners if c[0] is not owner]
                 if not _owners:  # the last run of the slot puts back what was there before the first
                     mujoco.set_mjcb_control(_previous)
                     _previous, _shared = None, False
-                _claim.notify_all()
+            if compiling:
+                _compilers.remove(entry)
+            _claim.notify_all()
 
 
 def _admit(callback, owner, shared: bool, me) -> tuple[bool, CallbackBusy | None]:
     """(whether to set the slot, the refusal or None) for a claim, under _claim."""
-    if not _owners:
-        return True, None
-    first = _owners[0]
-    if callback is None and _shared:
-        return False, None  # the shared C callback ignores a compile's forward pass: leave it
-    if shared and _shared and callback is not None and owner is not None:
-        if mujoco.get_mjcb_control() is not callback:
-            return False, _busy("install a second shared callback", first)
-        return False, None  # another run of the same shared callback
-    if callback is not None or any(t is not me for _, t in _owners):
-        return True, _busy("install a second simulation's control callback" if callback is not None else
-                           "clear the control callback (to compile a model) while another thread's simulation runs",
-                           first)
+    if callback is None and owner is None:  # a compile
+        if _owners and _shared:
+            return False, None  # the shared C callback ignores a compile's forward pass: leave it
+        if any(t is not me for _, t in _owners):
+            return True, _busy("clear the control callback (to compile a model) while another thread's "
+                               "simulation runs", _owners[0])
+        return mujoco.get_mjcb_control() is not None, None  # an empty slot needs no clearing
+    if shared and owner is not None:
+        if not _owners:
+            if any(t is not me for t, cleared in _compilers if cleared):  # its exit would put back what it cleared
+                return True, CallbackBusy("cannot install the native control callback while another thread has "
+                                          "cleared MuJoCo's control callback slot to compile a model")
+            return True, None
+        if _shared and mujoco.get_mjcb_control() is callback:
+            return False, None  # another run of the same shared callback
+        return True, _busy("install a second simulation's control callback", _owners[0])
+    if _owners:
+        return True, _busy("install a second simulation's control callback", _owners[0])
+    others = [t for t, _ in _compilers if t is not me]
+    if others:  # it would be called by the other thread's compile
+        return True, CallbackBusy(f"cannot install a control callback: thread {others[0].name!r} is compiling a model "
+                                  "with MuJoCo's control callback slot cleared; run one simulation of the Python "
+                                  "control path at a time per process")
     return True, None
 
 
