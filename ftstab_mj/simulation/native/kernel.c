@@ -541,9 +541,9 @@ int64_t ft_chain_size(void) { return (int64_t)sizeof(ft_chain); }
 /* ---- the control callback of the MuJoCo run loop (ftstab_mj/simulation/run_loop.py, native path) ----------------
  *
  * The C twin of Simulation._sample plus the per-step input writes of Simulation.advance, so that a
- * whole batch runs inside mj_step(m, d, nstep). It never reads the mjData struct: at configure time
- * Python hands it the addresses of the arrays it uses (they live as long as the MjData) and of
- * d->time. It is called once per forward pass; the step it belongs to is (time - t0) / h rounded, so a
+ * whole batch runs inside mj_step(m, d, nstep). It knows nothing of the mjData struct's layout: at
+ * configure time Python finds the offsets of d->time and of the array pointers it uses (ft_layout), and
+ * each call reads them from the d it is called with. It is called once per forward pass; the step it belongs to is (time - t0) / h rounded, so a
  * repeated call at the same time (a stray forward pass) does nothing and a jump of time (MuJoCo
  * resetting the data after a bad state) stops the batch. One forward pass per step: Euler and
  * implicitfast (RK4 runs the Python path). */
@@ -551,7 +551,7 @@ int64_t ft_chain_size(void) { return (int64_t)sizeof(ft_chain); }
 enum { FT_RUNNING = 0, FT_DIVERGED_Z = 1, FT_BAD_CONTROL = 2, FT_TIME_JUMP = 3 };
 
 typedef struct {
-    /* MjData (addresses taken once) */
+    /* the MjData of the current call (bound by bind_data at each call) */
     const double *time;
     double *ctrl, *qfrc_applied, *userdata;
     const double *sensordata, *qvel, *xpos, *xquat;
@@ -724,10 +724,8 @@ static void run_sample(ft_run *R, const void *m, void *d, int64_t s) {
 /* ---- the runs the callback serves: found from the MjData it is called with ------------------------
  *
  * MuJoCo's control callback is one global function pointer, so one callback serves every run of the
- * process; each call finds its run from its MjData d. A run stepping its own MjData is registered
- * under d's address (ft_run_activate); a run stepped inside a mujoco.batch.Batch, whose MjData
- * serve many simulations in turn, is found from a key the simulation carries in its own state
- * (userdata[key_slot], ft_batch_activate). The arrays of d are read through byte offsets inside
+ * process; each call finds its run from its MjData d, registered under d's address while the run
+ * steps (ft_run_activate .. ft_run_finish). The arrays of d are read through byte offsets inside
  * the mjData struct (ft_layout, found once by Python for the model), never through addresses of
  * one MjData, so a run works on whichever MjData it is called with, on any thread. */
 
@@ -745,16 +743,6 @@ typedef struct {
 static ft_slot ft_slots[FT_MAXACTIVE];
 static atomic_int ft_high = 0;                /* slots in use are below this index */
 static atomic_flag ft_slots_lock = ATOMIC_FLAG_INIT; /* writers only; readers are lock-free */
-
-/* A batch of runs (one per simulation of a Batch), keyed by userdata[key_slot] = tag + index. */
-typedef struct {
-    _Atomic(ft_run *) runs;  /* (nsim,) NULL: free */
-    int64_t nsim, key_slot;
-    double tag;
-    ft_layout lay;
-} ft_batchreg;
-#define FT_MAXBATCH 16
-static ft_batchreg ft_batches[FT_MAXBATCH];
 
 static void slots_lock(void) { while (atomic_flag_test_and_set_explicit(&ft_slots_lock, memory_order_acquire)) {} }
 static void slots_unlock(void) { atomic_flag_clear_explicit(&ft_slots_lock, memory_order_release); }
@@ -783,17 +771,6 @@ static ft_run *find_run(void *d) {
             bind_data(R, &ft_slots[k].lay, d);
             return R;
         }
-    for (int b = 0; b < FT_MAXBATCH; b++) {
-        ft_batchreg *B = &ft_batches[b];
-        ft_run *runs = atomic_load_explicit(&B->runs, memory_order_acquire);
-        if (runs == NULL) continue;
-        if (B->lay.userdata < 0) continue;
-        const double key = FT_FIELD(d, B->lay.userdata, const double *)[B->key_slot] - B->tag;
-        if (!(key >= 0.0 && key < (double)B->nsim)) continue;
-        ft_run *R = &runs[(int64_t)key];
-        bind_data(R, &B->lay, d);
-        return R;
-    }
     return NULL;
 }
 
@@ -869,38 +846,6 @@ static void run_close(ft_run *R) {
 void ft_run_finish(ft_run *R, void *d) {
     run_close(R);
     ft_run_forget(R, d);
-}
-
-/* Serve runs[0..nsim) for the simulations of a Batch whose userdata[key_slot] is tag + index.
- * Returns the registration's handle (>= 0), or -1 when every batch slot is taken. */
-int32_t ft_batch_activate(ft_run *runs, int64_t nsim, int64_t key_slot, double tag, const ft_layout *layout) {
-    int32_t found = -1;
-    slots_lock();
-    for (int b = 0; b < FT_MAXBATCH; b++) {
-        ft_batchreg *B = &ft_batches[b];
-        if (atomic_load_explicit(&B->runs, memory_order_relaxed) != NULL) continue;
-        B->nsim = nsim; B->key_slot = key_slot; B->tag = tag; B->lay = *layout;
-        atomic_store_explicit(&B->runs, runs, memory_order_release);
-        found = b;
-        break;
-    }
-    slots_unlock();
-    return found;
-}
-
-/* After Batch.step returned: no simulation of registration b is served any more. */
-void ft_batch_finish(int32_t b) {
-    if (b < 0 || b >= FT_MAXBATCH) return;
-    slots_lock();
-    atomic_store_explicit(&ft_batches[b].runs, NULL, memory_order_release);
-    slots_unlock();
-}
-
-/* The increment of the last step done by run R of a batch (integrating plants), with R bound to the
- * MjData its state was loaded into: the caller writes qfrc_applied back into the state row. */
-void ft_run_close(ft_run *R, double *qfrc_applied) {
-    R->qfrc_applied = qfrc_applied;
-    run_close(R);
 }
 
 int64_t ft_run_size(void) { return (int64_t)sizeof(ft_run); }
