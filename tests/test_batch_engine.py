@@ -81,3 +81,17 @@ scenario = "{ROOT / "scenarios" / "cart_r2_robust.toml"}"
         assert "6/6 runs in the table (6 completed)" in res.stdout, res.stdout
         tables[name] = results(read_table(tmp_path / name / "mix.parquet"))
     assert tables["batch1"] == tables["serial"] and tables["batch2"] == tables["serial"]
+
+
+def test_ftstab_compare_engine_batch_writes_the_serial_table(tmp_path):
+    """The shipped cart comparison (native and Python-path laws, 4 periods), shortened: the same table."""
+    import csv
+
+    tables = {}
+    for name, args in (("serial", ()), ("batch", ("--engine", "batch", "--workers", "2"))):
+        res = run_cli("compare", ROOT / "scenarios" / "compare" / "cart_r2.toml", "--set", "sim.duration=0.1",
+                      "--out", tmp_path / name, *args)
+        assert res.returncode == 0, res.stderr[-2000:]
+        with open(tmp_path / name / "cart_r2.csv", newline="") as f:
+            tables[name] = [{k: v for k, v in row.items() if k != "elapsed_s"} for row in csv.DictReader(f)]
+    assert len(tables["serial"]) > 8 and tables["batch"] == tables["serial"]
