@@ -18,7 +18,8 @@ table). A run's result depends on its parameters only, so the table does not dep
   cluster's workers are forked from a forkserver (:func:`local_worker_method`) that imported
   distributed and what a row runs once, so a worker starts without paying those imports again.
 
-One simulation at a time per process, whatever the engine: :func:`guarded` holds the process's
+One simulation at a time per process on the serial, processes and Dask engines (the batch engine's
+threads wait for MuJoCo's callback slot instead, :func:`_batch`): :func:`guarded` holds the process's
 :data:`ftstab_mj.plants.callback.ONE_RUN` lock for the whole run, so on an external cluster whose workers
 have several threads (``dask worker`` starts several by default) the threads of one worker take
 turns, and the table is the serial one. A per-process lock rather than worker resources (a task
