@@ -95,3 +95,15 @@ def test_ftstab_compare_engine_batch_writes_the_serial_table(tmp_path):
         with open(tmp_path / name / "cart_r2.csv", newline="") as f:
             tables[name] = [{k: v for k, v in row.items() if k != "elapsed_s"} for row in csv.DictReader(f)]
     assert len(tables["serial"]) > 8 and tables["batch"] == tables["serial"]
+
+
+def test_montecarlo_on_the_plant_with_engine_batch_gives_the_serial_rows(tmp_path):
+    import json
+
+    out = {}
+    for name, args in (("serial", ()), ("batch", ("--engine", "batch", "--workers", "2"))):
+        res = run_cli("montecarlo", ROOT / "scenarios" / "cart_r2_robust.toml", "--on", "plant", "--states", "6",
+                      "--set", "sim.duration=0.2", "--out", tmp_path / name, "--json", *args)
+        assert res.returncode == 0, res.stderr[-2000:]
+        out[name] = json.loads(res.stdout[res.stdout.index("{"):])
+    assert out["batch"] == out["serial"]
