@@ -5,7 +5,7 @@ import math
 
 import numpy as np
 import pytest
-from conftest import run_cli
+from conftest import ROOT, run_cli
 from metrics_reference import settle_time
 
 from ftstab_mj.metrics import run_metrics as mt
@@ -121,3 +121,38 @@ def test_chain_mode_on_an_ideal_chain_scenario_and_its_worst_case_rerun_with_fts
     assert summary["states"] == summary["settled"] == 20 and summary["bound_applies"] is True
     assert summary["violations"] == 0
     _rerun_gives_the_worst_case(tmp_path, "ideal_chain_r4", "chain", 8, summary["worst"])
+
+
+def test_settle_times_reduced_piece_by_piece_equal_the_whole_run_s():
+    rng = np.random.default_rng(7)
+    for _ in range(100):
+        n = int(rng.integers(1, 25))
+        V1 = rng.choice([0.0, 1.0, np.nan], size=(n, 6), p=[0.6, 0.3, 0.1])
+        t = np.arange(n) * 0.01
+        for seg in (1, 2, 5):
+            st = mc._Settle(0.5)
+            for a in range(0, n, seg):
+                st.add(t[a:a + seg], V1[a:a + seg])
+            np.testing.assert_array_equal(st.times(), mc.settle_times(t, V1, 0.5))
+
+
+@pytest.mark.parametrize("native", ["auto", False])
+def test_the_chain_run_in_pieces_gives_the_rows_of_the_whole_run_and_memory_flat_in_the_duration(native):
+    import tracemalloc
+
+    sc = load_scenario(ROOT / "scenarios" / "cart_r2_robust.toml", ["sim.duration=0.6"])
+    Z0 = mc.Distribution(24 if native else 6, (1.0, 1.0), 3).draw()
+    loop = sc.loops[0].name
+    whole, _ = mc.run_chain(sc, loop, Z0, native=native, segment=10**9)
+    for seg in (1, 77):
+        assert repr(mc.run_chain(sc, loop, Z0, native=native, segment=seg)[0]) == repr(whole)
+    if native is False:
+        return
+    peaks = []
+    for duration in (2.0, 10.0):  # samples held: one piece of 100, whatever the duration
+        long = load_scenario(ROOT / "scenarios" / "cart_r2_robust.toml", [f"sim.duration={duration}"])
+        tracemalloc.start()
+        mc.run_chain(long, loop, Z0, segment=100)
+        peaks.append(tracemalloc.get_traced_memory()[1])
+        tracemalloc.stop()
+    assert peaks[1] <= 1.2 * peaks[0], peaks  # a whole record would take 5x

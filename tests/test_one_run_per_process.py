@@ -1,10 +1,12 @@
-"""One simulation per process: MuJoCo's control callback is one global slot (and the native kernel
-has one active run), so two runs at once in one process would step with each other's callback.
+"""Several simulations in one process. MuJoCo's control callback is one global slot: a Python
+callback serves one run, while the native kernel's C callback finds each call's run from the MjData
+it is called with and serves any number of runs in any threads.
 
-Pinned here: a second run's callback cannot be installed while one is (a clear error, never a wrong
-trajectory), in the same thread or another; the sweep engines run one simulation at a time per
-process whatever the worker's thread count, so a real ``dask worker --nthreads 2`` gives the
-serial table.
+Pinned here: a second Python-path run's callback cannot be installed while one is (a clear error,
+never a wrong trajectory), in the same thread or another; native runs interleaved in one thread or
+stepping at once in two threads (simulations and ``ftstab_mj.run``) give their single-run results;
+the sweep engines run one simulation at a time per process whatever the worker's thread count, so a
+real ``dask worker --nthreads 2`` gives the serial table.
 """
 
 import ctypes
@@ -57,7 +59,7 @@ def in_thread(fn):
     return out[0] if out else None
 
 
-@pytest.mark.parametrize("native_path", [False, "auto"])
+@pytest.mark.parametrize("native_path", [False])
 def test_a_second_run_s_callback_is_refused_in_this_thread_and_the_first_run_goes_on(native_path):
     first, second = cart_sim(native_path), cart_sim(native_path, amplitude=0.8)
     alone = cart_sim(native_path)
@@ -66,7 +68,7 @@ def test_a_second_run_s_callback_is_refused_in_this_thread_and_the_first_run_goe
     with first.installed():
         a = first.advance(10).loops["cart"]["z"]
         with pytest.raises(CallbackBusy, match=r"cannot install a second simulation's control callback: MuJoCo's "
-                                               r"control callback is one slot per process .*--nthreads 1"):
+                                               r"control callback is one slot per process .*--nthreads 1; runs on the native kernel share it\)$"):
             with second.installed():
                 pass
         # stepping another simulation without installing its callback is refused too (the native
@@ -80,7 +82,7 @@ def test_a_second_run_s_callback_is_refused_in_this_thread_and_the_first_run_goe
 
 
 def test_another_thread_can_neither_install_a_callback_nor_clear_the_slot_while_a_run_steps():
-    sim, other = cart_sim(), cart_sim()
+    sim, other = cart_sim(False), cart_sim(False)
     with sim.installed():
         busy = in_thread(lambda: other.installed().__enter__())
         assert isinstance(busy, CallbackBusy) and "thread 'MainThread'" in str(busy)
@@ -95,22 +97,103 @@ def test_another_thread_can_neither_install_a_callback_nor_clear_the_slot_while_
     assert in_thread(lambda: make_plant("cart").compile(0.001)) is None
 
 
-@pytest.mark.skipif(not native.available(), reason="the C kernel is not built")
-def test_the_native_kernel_serves_each_batch_the_run_of_the_thread_that_steps_it():
-    """The kernel's active run is per thread (the callback runs in the thread that called mj_step):
-    a run left active in another thread (one activated there and never finished) does not take
-    this thread's batch, and an activation interrupted before its batch stepped leaves nothing behind."""
-    from ftstab_mj.simulation.native.run import FtRun, _lib
+needs_kernel = pytest.mark.skipif(not native.available(), reason="the C kernel is not built")
+
+
+@needs_kernel
+def test_the_native_kernel_serves_each_call_the_run_of_the_mjdata_it_is_called_with():
+    """A run registered for another MjData (in another thread, never finished) does not take this
+    simulation's calls, and an activation left behind (as if a Ctrl-C came before the first step)
+    changes nothing."""
+    from ftstab_mj.simulation.native.run import FtRun, _lib, data_layout
 
     lib = _lib()
+    other = cart_sim(True)
     elsewhere = FtRun()  # zeroed: a callback serving it would read through NULL pointers
-    assert in_thread(lambda: lib.ft_run_activate(ctypes.byref(elsewhere))) is None
+    layout = data_layout(other.data)
+    assert in_thread(lambda: lib.ft_run_activate(ctypes.byref(elsewhere), other.data._address,
+                                                 ctypes.byref(layout))) is None
     alone, sim = cart_sim(True), cart_sim(True)
     with alone.installed():
         reference = alone.advance(20).loops["cart"]["z"]
     with sim.installed():
-        lib.ft_run_activate(ctypes.byref(sim._native.run))  # as if a Ctrl-C came before the first step
+        lib.ft_run_activate(ctypes.byref(sim._native.run), sim.data._address, ctypes.byref(sim._native.layout))
         np.testing.assert_array_equal(sim.advance(20).loops["cart"]["z"], reference)
+    lib.ft_run_finish(ctypes.byref(elsewhere), other.data._address)
+
+
+@needs_kernel
+def test_native_runs_interleaved_in_one_thread_share_the_callback_and_keep_their_results():
+    a_alone, b_alone = cart_sim(True), cart_sim(True, amplitude=0.8)
+    refs = []
+    for sim in (a_alone, b_alone):
+        with sim.installed():
+            refs.append(sim.advance(30).loops["cart"]["z"])
+    a, b = cart_sim(True), cart_sim(True, amplitude=0.8)
+    with a.installed(), b.installed():
+        za = [a.advance(10).loops["cart"]["z"]]
+        zb = [b.advance(15).loops["cart"]["z"]]
+        za.append(a.advance(20).loops["cart"]["z"])
+        zb.append(b.advance(15).loops["cart"]["z"])
+    np.testing.assert_array_equal(np.concatenate(za), refs[0])
+    np.testing.assert_array_equal(np.concatenate(zb), refs[1])
+    assert mujoco.get_mjcb_control() is None  # the last run out put back what was there
+
+
+@needs_kernel
+def test_native_runs_stepping_at_once_in_two_threads_give_their_single_run_results():
+    """Two threads step their simulations in many small batches at once, so their mj_step calls
+    overlap (the GIL is released inside mj_step): each records its single-run trajectory."""
+    amps = (0.4, 0.8)
+    refs = []
+    for amp in amps:
+        sim = cart_sim(True, amplitude=amp)
+        with sim.installed():
+            refs.append(np.concatenate([sim.advance(1).loops["cart"]["z"] for _ in range(400)]))
+    got = [None, None]
+    start = threading.Barrier(2)
+
+    def run(i):
+        sim = cart_sim(True, amplitude=amps[i])
+        start.wait()
+        with sim.installed():
+            got[i] = np.concatenate([sim.advance(1).loops["cart"]["z"] for _ in range(400)])
+
+    threads = [threading.Thread(target=run, args=(i,)) for i in range(2)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(120)
+    for i in range(2):
+        np.testing.assert_array_equal(got[i], refs[i])
+
+
+@needs_kernel
+def test_the_api_runs_two_scenarios_in_two_threads_with_their_single_run_results():
+    import ftstab_mj
+
+    overrides = [{"sim.duration": 0.5, "loops.cart.disturbance.amplitude": a} for a in (0.2, 0.9)]
+    path = ROOT / "scenarios" / "cart_r2_robust.toml"
+    alone = [ftstab_mj.run(path, overrides=o).metrics for o in overrides]
+    got = [None, None]
+
+    def run(i):
+        got[i] = ftstab_mj.run(path, overrides=overrides[i]).metrics
+
+    threads = [threading.Thread(target=run, args=(i,)) for i in range(2)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(120)
+    assert got == alone and alone[0] != alone[1]
+
+
+def test_a_python_path_run_in_a_second_thread_is_refused_in_one_line_while_a_native_run_steps():
+    native_sim, python_sim = cart_sim("auto"), cart_sim(False)
+    with native_sim.installed():
+        busy = in_thread(lambda: python_sim.installed().__enter__())
+    assert isinstance(busy, CallbackBusy) and "\n" not in str(busy)
+    assert mujoco.get_mjcb_control() is None
 
 
 def test_sweep_rows_run_in_threads_of_one_process_give_the_serial_results(tmp_path):

@@ -24,7 +24,9 @@ def add_parser(sub) -> None:
     cp.add_argument("comparison", help="comparison file (.toml)")
     cp.add_argument("--workers", type=workers, default=1, metavar="N",
                     help="parallel runs on a local process pool (default 1: serial; 'all': one per core)")
-    cp.add_argument("--engine", choices=("serial", "processes"), help="serial or processes (default: processes when N > 1)")
+    cp.add_argument("--engine", choices=("serial", "batch", "processes"),
+                    help="serial, batch (N threads of this process, as for ftstab sweep) or processes "
+                         "(default: processes when N > 1)")
     cp.add_argument("--out", metavar="DIR", help="output directory (default: runs/<name>)")
     cp.add_argument("--set", action="append", default=[], metavar="KEY.PATH=VALUE",
                     help="override a field of the base scenario for every run (repeatable), e.g. sim.duration=1")

@@ -29,8 +29,9 @@ def add_parser(sub) -> None:
                     help="chain: the loop on the exact ideal chain (ideal-chain scenarios, carts without friction or damping); "
                          "plant: runs of the scenario itself, like ftstab run")
     mc.add_argument("--workers", type=workers, default=1, metavar="N", help="plant: parallel runs")
-    mc.add_argument("--engine", choices=("serial", "processes", "dask"),
-                    help="plant: the sweep engine (default: processes when N > 1, dask with --scheduler)")
+    mc.add_argument("--engine", choices=("serial", "batch", "processes", "dask"),
+                    help="plant: the sweep engine, as for ftstab sweep (default: processes when N > 1, dask with "
+                         "--scheduler)")
     mc.add_argument("--scheduler", metavar="ADDRESS", help="plant: a running Dask scheduler (implies --engine dask)")
     mc.add_argument("--set", action="append", default=[], metavar="KEY.PATH=VALUE", help="override a field (repeatable)")
     mc.add_argument("--out", metavar="DIR", help="output directory (default: runs/<scenario>-montecarlo)")

@@ -24,9 +24,11 @@ def add_parser(sub) -> None:
     w.add_argument("--workers", type=workers, default=1, metavar="N",
                    help="parallel runs (default 1: serial; 'all': one per core); N > 1 starts N local worker "
                         "processes")
-    w.add_argument("--engine", choices=("serial", "processes", "dask"),
-                   help="serial, processes (a local process pool) or dask (a local Dask cluster of N processes, "
-                        "or --scheduler's); default: processes when N > 1, dask with --scheduler")
+    w.add_argument("--engine", choices=("serial", "batch", "processes", "dask"),
+                   help="serial, batch (N threads of this process; runs on the native kernel step at once, "
+                        "the others one at a time), processes (a local process pool) or dask (a local Dask "
+                        "cluster of N processes, or --scheduler's); default: processes when N > 1, dask with "
+                        "--scheduler")
     w.add_argument("--scheduler", metavar="ADDRESS",
                    help="a running Dask scheduler (tcp://host:8786) instead of local workers (implies --engine dask); "
                         "its workers need ftstab_mj installed")

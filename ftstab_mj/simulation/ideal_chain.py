@@ -55,22 +55,39 @@ def simulate_chain(law, z0, period: float, duration: float, phi: Signal | None =
     the C kernel (ftstab_mj.simulation.native), which agrees with it to rounding (a large batch is split over
     the CPUs: native.chain_threads).
     """
+    (run,) = simulate_chain_segments(law, z0, period, duration, phi, gamma, substeps, phi_hat0, native, segment=None)
+    return run
+
+
+def simulate_chain_segments(law, z0, period: float, duration: float, phi: Signal | None = None,
+                            gamma: Signal | None = None, substeps: int = 1, phi_hat0=0.0, native=False,
+                            segment: int | None = 1000):
+    """:func:`simulate_chain` as consecutive pieces of at most ``segment`` samples each (None: one piece),
+    yielded as ChainRun whose t, z, ... are those samples of the whole run (the same bits), and whose
+    z_final is the state after the piece: a caller that reduces each piece as it comes keeps memory
+    flat in the duration."""
     if not (period > 0 and np.isfinite(period)):
         raise ParameterError("period", "a finite number > 0 (s)", period)
     if isinstance(substeps, bool) or not isinstance(substeps, (int, np.integer)) or substeps < 1:
         raise ParameterError("substeps", "an integer >= 1", substeps)
     phi = phi or Signal("constant", 0.0)
     gamma = gamma or Signal("constant", 1.0)
-    r = law.hong.r
     z = np.array(z0, dtype=float)
     n = int(round(duration / period))
-    dt = period / substeps
-    Phi, G = chain_transition(r, dt)
-    batch = z.shape[:-1]
-    ph = np.broadcast_to(np.asarray(phi_hat0, dtype=float), batch).copy()
-    t = np.arange(n) * period
-    if native_path.use_native(native, law):
-        return _simulate_chain_native(law, z, ph, t, period, substeps, Phi, G, phi, gamma)
+    Phi, G = chain_transition(law.hong.r, period / substeps)
+    ph = np.broadcast_to(np.asarray(phi_hat0, dtype=float), z.shape[:-1]).copy()
+    run_piece = _simulate_chain_native if native_path.use_native(native, law) else _simulate_chain_numpy
+    step = max(1, n if segment is None else int(segment))
+    for a in range(0, max(n, 1), step):
+        t = np.arange(a, min(n, a + step)) * period  # the instants k * period of the whole run, bit for bit
+        run, ph = run_piece(law, z, ph, t, period, substeps, Phi, G, phi, gamma)
+        z = run.z_final
+        yield run
+
+
+def _simulate_chain_numpy(law, z, ph, t, period, substeps, Phi, G, phi, gamma) -> tuple[ChainRun, np.ndarray]:
+    """(the samples at the instants t (n,), phi_hat after them) from state z (..., r), phi_hat ph (...)."""
+    n, batch, dt = len(t), z.shape[:-1], period / substeps
     names = ("u", "u0", "V1", "dV1_dzr", "phi_hat", "gamma_hat", "phi", "gamma")
     rec = {k: np.empty((n,) + batch) for k in names}
     zs = np.empty((n,) + z.shape)
@@ -87,10 +104,10 @@ def simulate_chain(law, z0, period: float, duration: float, phi: Signal | None =
                 rec["phi"][k], rec["gamma"][k] = w_phi, w_gam
             z = z @ Phi.T + (w_phi + w_gam * out.u)[..., None] * G
         ph = advance_phi_hat(law, out.V1, ph, period)
-    return ChainRun(t=t, z=zs, z_final=z, **rec)
+    return ChainRun(t=t, z=zs, z_final=z, **rec), ph
 
 
-def _simulate_chain_native(law, z, ph, t, period, substeps, Phi, G, phi, gamma) -> ChainRun:
+def _simulate_chain_native(law, z, ph, t, period, substeps, Phi, G, phi, gamma) -> tuple[ChainRun, np.ndarray]:
     """simulate_chain's loop in the C kernel: same inputs (phi and gamma tabulated at the same
     sub-step instants t_k + s dt), same outputs."""
     batch, r, n = z.shape[:-1], z.shape[-1], len(t)
@@ -102,4 +119,4 @@ def _simulate_chain_native(law, z, ph, t, period, substeps, Phi, G, phi, gamma) 
     zs, rec = native_path.simulate_chain_kernel(law, zf, phf, n, substeps, period, Phi, G, phi_in, gam_in,
                                                 native_path.chain_threads(len(zf)))
     return ChainRun(t=t, z=zs.reshape((n,) + batch + (r,)), z_final=zf.reshape(batch + (r,)),
-                    **{k: v.reshape((n,) + batch) for k, v in rec.items()})
+                    **{k: v.reshape((n,) + batch) for k, v in rec.items()}), phf.reshape(batch)

@@ -56,7 +56,7 @@ import mujoco
 import numpy as np
 
 from ftstab_mj.simulation import native as native_path
-from ftstab_mj.plants.callback import control_callback, slot_owner, timer_off
+from ftstab_mj.plants.callback import control_callback, holds_slot, timer_off
 from ftstab_mj.simulation.interrupts import Interrupted, critical, interruption
 from ftstab_mj.config.errors import CallbackError, ParameterError
 from ftstab_mj.simulation.stages.pipeline import build_stages, describe_stages
@@ -298,14 +298,15 @@ class Simulation:
     def installed(self):
         """Context manager installing this simulation's control callback (previous one restored),
         with MuJoCo's profiling timer off meanwhile (callback.timer_off: half of a bare step)."""
-        with control_callback(self.callback, owner=self), timer_off():
+        # the native callback finds its run from the MjData: runs in other threads share it
+        with control_callback(self.callback, owner=self, shared=self._native is not None), timer_off():
             yield
 
     # -- running ----------------------------------------------------------------------------------
     def advance(self, n_samples: int) -> SampleBatch:
         """Run n_samples control periods (fewer if the run diverges: see ``stop_reason``) and return
         their samples. Must be called between samples, with the callback installed."""
-        if slot_owner() is not self or mujoco.get_mjcb_control() is not self.callback:
+        if not holds_slot(self) or mujoco.get_mjcb_control() is not self.callback:
             raise RuntimeError("Simulation.advance needs its control callback installed (use `with sim.installed():`)")
         m, d, N, n = self.model, self.data, self.N, self.plant.n
         # d.time is a running float sum of steps, so it drifts from k * period (1e-10 s after 369,000

@@ -248,10 +248,12 @@ def oscillation_columns(m: dict) -> dict:
 
 
 def engine_for(workers: int, engine: str | None = None) -> str:
-    """The sweep engine of ``ftstab compare --workers N [--engine E]``: a local process pool when N > 1,
-    else serial; UsageError for --engine serial with N > 1."""
+    """The sweep engine of ``ftstab compare --workers N [--engine E]``: batch (N threads of this process)
+    when asked, else a local process pool when N > 1, else serial; UsageError for --engine serial with N > 1."""
     if workers > 1 and engine == "serial":
         raise UsageError("--engine serial: expected no --workers (one process runs everything)")
+    if engine == "batch":
+        return "batch"
     return "processes" if workers > 1 else "serial"
 
 

@@ -128,9 +128,14 @@ def _rows(info: LoopInfo, first: int, Z0, settle, V1_0, V1_end, u_max, status) -
     return rows
 
 
-def run_chain(sc, loop: str, Z0: np.ndarray, chunk: int = 128, native="auto", progress=None) -> tuple[list[dict], LoopInfo]:
-    """Per-trajectory rows of the scenario's loop on the ideal chain from every row of Z0 (N, r)."""
-    from ftstab_mj.simulation.ideal_chain import simulate_chain
+def run_chain(sc, loop: str, Z0: np.ndarray, chunk: int = 128, native="auto", progress=None,
+              segment: int = 1000) -> tuple[list[dict], LoopInfo]:
+    """Per-trajectory rows of the scenario's loop on the ideal chain from every row of Z0 (N, r).
+
+    Each chunk of states runs in pieces of ``segment`` samples, each reduced as it comes (settle time,
+    first and last V1, max |u|, finiteness), so memory is flat in the duration; the rows are those of
+    the whole run reduced at once (the same bits)."""
+    from ftstab_mj.simulation.ideal_chain import simulate_chain_segments
     from ftstab_mj.simulation.run_loop import steps_per_period
 
     lp, plant = chain_loop(sc, loop)
@@ -141,15 +146,51 @@ def run_chain(sc, loop: str, Z0: np.ndarray, chunk: int = 128, native="auto", pr
     rows = []
     for first in range(0, len(Z0), chunk):
         Zc = Z0[first:first + chunk]
-        run = simulate_chain(law, Zc, sc.sim.period, sc.sim.duration, phi=lp.disturbance, gamma=lp.gain,
-                             substeps=substeps, native=native)
-        settle = settle_times(run.t, run.V1, level)
-        finite = np.isfinite(run.z).all(axis=(0, 2))
+        settle = _Settle(level)
+        V1_0 = V1_end = u_max = finite = None
+        for run in simulate_chain_segments(law, Zc, sc.sim.period, sc.sim.duration, phi=lp.disturbance,
+                                           gamma=lp.gain, substeps=substeps, native=native, segment=segment):
+            if not len(run.t):
+                continue
+            settle.add(run.t, run.V1)
+            piece_max = np.max(np.abs(run.u), axis=0)
+            piece_finite = np.isfinite(run.z).all(axis=(0, 2))
+            V1_0 = run.V1[0] if V1_0 is None else V1_0
+            V1_end = run.V1[-1]
+            u_max = piece_max if u_max is None else np.maximum(u_max, piece_max)  # NaN propagates, as np.max
+            finite = piece_finite if finite is None else finite & piece_finite
+        if V1_0 is None:  # no sample (a duration shorter than a period): the whole-run reduction of nothing
+            raise ScenarioError("montecarlo", "sim.duration", "at least one control period", sc.sim.duration)
         status = ["completed" if f else "diverged" for f in finite]
-        rows += _rows(info, first, Zc, settle, run.V1[0], run.V1[-1], np.max(np.abs(run.u), axis=0), status)
+        rows += _rows(info, first, Zc, settle.times(), V1_0, V1_end, u_max, status)
         if progress:
             progress(min(first + chunk, len(Z0)), len(Z0))
     return rows, info
+
+
+class _Settle:
+    """:func:`settle_times` of samples given in consecutive pieces: the first sample time of each
+    trajectory after its last sample above ``level`` (NaN counts as above), the run's first time if
+    none is above, NaN if the last sample is above."""
+
+    def __init__(self, level: float):
+        self.level, self.t0, self.after, self.ever, self.pending = level, None, None, None, None
+
+    def add(self, t: np.ndarray, V1: np.ndarray) -> None:
+        """One piece: t (n,), V1 (n, B)."""
+        above = ~(V1 <= self.level)
+        some = above.any(axis=0)
+        piece = settle_times(t, V1, self.level)  # NaN where the piece's last sample is above
+        if self.t0 is None:
+            self.t0, self.after, self.ever = t[0], np.full(V1.shape[1], np.nan), np.zeros(V1.shape[1], bool)
+            self.pending = np.zeros(V1.shape[1], bool)
+        # a trajectory above at the end of the last piece settles at this piece's first time if none is above here
+        self.after = np.where(some, piece, np.where(self.pending, t[0], self.after))
+        self.pending = above[-1]
+        self.ever |= some
+
+    def times(self) -> np.ndarray:
+        return np.where(self.ever, np.where(self.pending, np.nan, self.after), self.t0)
 
 
 def run_plant(task, loop: str, Z0: np.ndarray, engine="serial", workers=1, scheduler=None, progress=None) -> list[dict]:

@@ -12,6 +12,7 @@
 #include <math.h>
 #include <stddef.h>
 #include <stdint.h>
+#include <stdatomic.h>
 #if defined(__unix__) || defined(__APPLE__)
 #define FT_THREADS 1
 #include <pthread.h>
@@ -392,9 +393,9 @@ int64_t ft_chain_size(void) { return (int64_t)sizeof(ft_chain); }
 /* ---- the control callback of the MuJoCo run loop (ftstab_mj/simulation/run_loop.py, native path) ----------------
  *
  * The C twin of Simulation._sample plus the per-step input writes of Simulation.advance, so that a
- * whole batch runs inside mj_step(m, d, nstep). It never reads the mjData struct: at configure time
- * Python hands it the addresses of the arrays it uses (they live as long as the MjData) and of
- * d->time. It is called once per forward pass; the step it belongs to is (time - t0) / h rounded, so a
+ * whole batch runs inside mj_step(m, d, nstep). It knows nothing of the mjData struct's layout: at
+ * configure time Python finds the offsets of d->time and of the array pointers it uses (ft_layout), and
+ * each call reads them from the d it is called with. It is called once per forward pass; the step it belongs to is (time - t0) / h rounded, so a
  * repeated call at the same time (a stray forward pass) does nothing and a jump of time (MuJoCo
  * resetting the data after a bad state) stops the batch. One forward pass per step: Euler and
  * implicitfast (RK4 runs the Python path). */
@@ -402,7 +403,7 @@ int64_t ft_chain_size(void) { return (int64_t)sizeof(ft_chain); }
 enum { FT_RUNNING = 0, FT_DIVERGED_Z = 1, FT_BAD_CONTROL = 2, FT_TIME_JUMP = 3 };
 
 typedef struct {
-    /* MjData (addresses taken once) */
+    /* the MjData of the current call (bound by bind_data at each call) */
     const double *time;
     double *ctrl, *qfrc_applied, *userdata;
     const double *sensordata, *qvel, *xpos, *xquat;
@@ -572,20 +573,62 @@ static void run_sample(ft_run *R, const void *m, void *d, int64_t s) {
     R->row = row;
 }
 
-/* The run whose batch is stepping, one per thread: MuJoCo calls the control callback in the
- * thread that called mj_step, so with a thread-local active run a batch is only ever served by the
- * run of the thread that steps it (two threads stepping native batches at once cannot take each
- * other's: the Python side refuses a second run's callback anyway, callback.py). */
-#if defined(_MSC_VER)
-static __declspec(thread) ft_run *ft_active = NULL;
-#else
-static _Thread_local ft_run *ft_active = NULL;
-#endif
+/* ---- the runs the callback serves: found from the MjData it is called with ------------------------
+ *
+ * MuJoCo's control callback is one global function pointer, so one callback serves every run of the
+ * process; each call finds its run from its MjData d, registered under d's address while the run
+ * steps (ft_run_activate .. ft_run_finish). The arrays of d are read through byte offsets inside
+ * the mjData struct (ft_layout, found once by Python for the model), never through addresses of
+ * one MjData, so a run works on whichever MjData it is called with, on any thread. */
 
-/* The callback installed with mujoco.set_mjcb_control (signature mjfGeneric). */
-void ft_control_callback(const void *m, void *d) {
-    ft_run *R = ft_active;
-    if (R == NULL || R->busy || R->status != FT_RUNNING) return;
+/* Byte offsets inside mjData of the field time and of the pointer fields the callback uses. */
+typedef struct {
+    int64_t time, ctrl, qfrc_applied, userdata, sensordata, qvel, xpos, xquat;
+} ft_layout;
+
+#define FT_MAXACTIVE 256
+typedef struct {
+    _Atomic(const void *) d; /* the MjData of a single run (NULL: free slot) */
+    ft_run *R;
+    ft_layout lay;
+} ft_slot;
+static ft_slot ft_slots[FT_MAXACTIVE];
+static atomic_int ft_high = 0;                /* slots in use are below this index */
+static atomic_flag ft_slots_lock = ATOMIC_FLAG_INIT; /* writers only; readers are lock-free */
+
+static void slots_lock(void) { while (atomic_flag_test_and_set_explicit(&ft_slots_lock, memory_order_acquire)) {} }
+static void slots_unlock(void) { atomic_flag_clear_explicit(&ft_slots_lock, memory_order_release); }
+
+#define FT_FIELD(d, off, type) (*(type *)((char *)(d) + (off)))
+#define FT_ARRAY(d, off, type) ((off) < 0 ? (type)NULL : FT_FIELD(d, off, type)) /* -1: an empty array */
+
+/* Point R at the arrays of the MjData d it is called with. */
+static void bind_data(ft_run *R, const ft_layout *L, void *d) {
+    R->time = &FT_FIELD(d, L->time, double);
+    R->ctrl = FT_ARRAY(d, L->ctrl, double *);
+    R->qfrc_applied = FT_ARRAY(d, L->qfrc_applied, double *);
+    R->userdata = FT_ARRAY(d, L->userdata, double *);
+    R->sensordata = FT_ARRAY(d, L->sensordata, const double *);
+    R->qvel = FT_ARRAY(d, L->qvel, const double *);
+    R->xpos = FT_ARRAY(d, L->xpos, const double *);
+    R->xquat = FT_ARRAY(d, L->xquat, const double *);
+}
+
+/* The run of d (its arrays bound), or NULL when d belongs to no registered run. */
+static ft_run *find_run(void *d) {
+    const int high = atomic_load_explicit(&ft_high, memory_order_acquire);
+    for (int k = 0; k < high; k++)
+        if (atomic_load_explicit(&ft_slots[k].d, memory_order_acquire) == d) {
+            ft_run *R = ft_slots[k].R;
+            bind_data(R, &ft_slots[k].lay, d);
+            return R;
+        }
+    return NULL;
+}
+
+/* One sample's bookkeeping before a step of R (s: the step index). */
+static void run_step(ft_run *R, const void *m, void *d) {
+    if (R->busy || R->status != FT_RUNNING) return;
     const int64_t s = llround((*R->time - R->t0) / R->h);
     if (s == R->last_step) return;           /* a repeated forward pass at the same time */
     if (s != R->last_step + 1 || s >= R->nsteps) {
@@ -607,15 +650,54 @@ void ft_control_callback(const void *m, void *d) {
     }
 }
 
-/* Make R the run the callback serves in this thread. */
-void ft_run_activate(ft_run *R) { ft_active = R; }
+/* The callback installed with mujoco.set_mjcb_control (signature mjfGeneric). */
+void ft_control_callback(const void *m, void *d) {
+    ft_run *R = find_run(d);
+    if (R != NULL) run_step(R, m, d);
+}
 
-/* After mj_step(nstep) returned: the increment of the last step done (integrating plants), and R
- * is no longer served (one call, so that no Python runs between the two). */
-void ft_run_finish(ft_run *R) {
+/* Serve R for the MjData d (layout: d's offsets). Returns 0, or -1 when every slot is taken. */
+int32_t ft_run_activate(ft_run *R, void *d, const ft_layout *layout) {
+    int32_t found = -1;
+    slots_lock();
+    int k = 0; /* d's slot if it has one (one run per MjData: the newest activation wins), else a free one */
+    while (k < FT_MAXACTIVE && atomic_load_explicit(&ft_slots[k].d, memory_order_relaxed) != d) k++;
+    if (k < FT_MAXACTIVE) atomic_store_explicit(&ft_slots[k].d, NULL, memory_order_release);
+    else k = 0;
+    for (; k < FT_MAXACTIVE; k++) {
+        if (atomic_load_explicit(&ft_slots[k].d, memory_order_relaxed) != NULL) continue;
+        ft_slots[k].R = R;
+        ft_slots[k].lay = *layout;
+        atomic_store_explicit(&ft_slots[k].d, d, memory_order_release);
+        if (k >= atomic_load(&ft_high)) atomic_store(&ft_high, k + 1);
+        found = 0;
+        break;
+    }
+    slots_unlock();
+    bind_data(R, layout, d);
+    return found;
+}
+
+/* d is no longer served by R, without touching d (which may be gone): a run's clean-up. */
+void ft_run_forget(ft_run *R, void *d) {
+    slots_lock();
+    for (int k = 0; k < FT_MAXACTIVE; k++)
+        if (atomic_load_explicit(&ft_slots[k].d, memory_order_relaxed) == d && ft_slots[k].R == R)
+            atomic_store_explicit(&ft_slots[k].d, NULL, memory_order_release);
+    slots_unlock();
+}
+
+/* After mj_step(nstep) returned: the increment of the last step done (integrating plants). */
+static void run_close(ft_run *R) {
     if (R->integrating && R->status == FT_RUNNING && R->last_step >= 0)
         for (int i = 0; i < R->n; i++) R->qfrc_applied[dof_of(R, i)] += R->force[R->last_step * R->n + i];
-    if (ft_active == R) ft_active = NULL;
+}
+
+/* After mj_step(nstep) returned: the last step's increment, and d is no longer served (one call,
+ * so that no Python runs between the two). */
+void ft_run_finish(ft_run *R, void *d) {
+    run_close(R);
+    ft_run_forget(R, d);
 }
 
 int64_t ft_run_size(void) { return (int64_t)sizeof(ft_run); }

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import ctypes
 import functools
+import weakref
 from pathlib import Path
 
 import mujoco
@@ -77,13 +78,16 @@ def _lib():
     if not hasattr(lib, "_ft_run_ready"):
         if lib.ft_run_size() != ctypes.sizeof(FtRun):
             raise native.NativeUnavailable("the C kernel does not match this ftstab_mj version (rebuild it)")
-        for name in ("ft_run_activate", "ft_run_finish"):
-            getattr(lib, name).argtypes = [_p]
+        lib.ft_run_activate.argtypes = [_p, _p, _p]
+        lib.ft_run_activate.restype = _i32
+        for name in ("ft_run_finish", "ft_run_forget"):
+            getattr(lib, name).argtypes = [_p, _p]
             getattr(lib, name).restype = None
         lib._ft_run_ready = True
     return lib
 
 
+LAYOUT_POINTERS = ("ctrl", "qfrc_applied", "userdata", "sensordata", "qvel", "xpos", "xquat")  # ft_layout order
 _time_offset: list[int] = []  # offset of time in mjData found by the last search (the scan costs ~0.7 ms a run)
 
 
@@ -119,6 +123,39 @@ def time_address(d: mujoco.MjData) -> int:
         raise native.NativeUnavailable("cannot locate mjData.time for the native callback")
     finally:
         d.time = saved
+
+
+class FtLayout(ctypes.Structure):
+    """Mirror of ft_layout in kernel.c: byte offsets inside the mjData struct of time and of the
+    pointer fields the callback reads, so that it reads the arrays of whichever MjData it is called with."""
+
+    _fields_ = [(name, _i64) for name in ("time",) + LAYOUT_POINTERS]
+
+
+def data_layout(d: mujoco.MjData) -> FtLayout:
+    """The offsets of ``d`` (the same for every MjData of its model): each pointer field is the one
+    aligned word of the struct holding that array's address (fields after time, so the scan stays
+    inside the struct); -1 for an empty array. Two fields of one model holding one address (empty arrays) point to the same
+    place in every MjData of the model, so either is right."""
+    base = d._address
+    lay = FtLayout(time=time_address(d) - base)
+    # an empty array (no userdata) is never read: offset -1, the callback gets NULL for it
+    want = {name: getattr(d, name).ctypes.data for name in LAYOUT_POINTERS if getattr(d, name).size}
+    for name in set(LAYOUT_POINTERS) - set(want):
+        setattr(lay, name, -1)
+    off, chunk = lay.time, 512
+    while want:
+        buf = ctypes.string_at(base + off, chunk)
+        words = np.frombuffer(buf, dtype=np.uint64)
+        for name in list(want):
+            hit = np.flatnonzero(words == np.uint64(want[name]))
+            if hit.size:
+                setattr(lay, name, off + 8 * int(hit[0]))
+                del want[name]
+        off += chunk
+        if off > lay.time + (1 << 16):
+            raise native.NativeUnavailable(f"cannot locate mjData.{next(iter(want))} for the native callback")
+    return lay
 
 
 @functools.lru_cache(maxsize=None)
@@ -240,9 +277,7 @@ class NativeRun:
         if keep["sensor_adr"].shape != (n, plant.r):
             raise ValueError(f"native run: sensor_adr: expected shape {(n, plant.r)}, got {keep['sensor_adr'].shape}")
         R = self.run = FtRun()
-        R.time = time_address(d)
-        for name in ("ctrl", "qfrc_applied", "userdata", "sensordata", "qvel", "xpos", "xquat"):
-            setattr(R, name, getattr(d, name).ctypes.data)
+        self.layout = data_layout(d)  # the callback binds R to the MjData it is called with
         R.mj_forward_skip = mujoco_function("mj_forwardSkip") if plant.refresh_before_sample else None
         R.skip_stage = int(mujoco.mjtStage.mjSTAGE_VEL)
         R.n, R.N, R.integrating, R.nbody = n, N, int(plant.integrating), len(body_ids)
@@ -251,6 +286,9 @@ class NativeRun:
         R.period, R.h, R.divergence_limit = period, physics_step, divergence_limit
         R.chain = ctypes.addressof(self._chain) if chain else None
         self.d = d
+        # a batch cut between its activation and its finish (a Ctrl-C) leaves d registered: forget it
+        # with this run, so that an MjData later allocated at d's address is never served R
+        weakref.finalize(self, self.lib.ft_run_forget, ctypes.addressof(R), d._address)
         self.callback = self.lib.ft_control_callback  # a ctypes function pointer: set_mjcb_control takes it
 
     def use_stages(self, stages, stage_slices, physics_step: float) -> None:
@@ -337,11 +375,12 @@ class NativeRun:
         for i, a in enumerate(rec):
             R.rec[i] = a.ctypes.data
         R.last_step, R.row, R.status = -1, -1, 0
-        try:
-            self.lib.ft_run_activate(ctypes.byref(R))  # the run this thread's callback calls serve
+        try:  # the callback serves R for the calls made with d, in whichever thread steps it
+            if self.lib.ft_run_activate(ctypes.byref(R), d._address, ctypes.byref(self.layout)):
+                raise native.NativeUnavailable("the native callback serves at most 256 simulations stepping at once")
             mujoco.mj_step(m, d, nstep=int(R.nsteps))
         finally:  # also on Ctrl-C (raised right after mj_step): the last step's force increment is
-            self.lib.ft_run_finish(ctypes.byref(R))  # applied, and R is no longer served
+            self.lib.ft_run_finish(ctypes.byref(R), d._address)  # applied, and d is no longer served
 
     def clear_rows(self) -> None:
         """No sample recorded (:attr:`rows` = 0) until the next batch records one."""

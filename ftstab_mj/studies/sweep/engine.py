@@ -6,6 +6,8 @@ Every engine calls the same picklable ``task(index, params) -> {"status", "error
 table). A run's result depends on its parameters only, so the table does not depend on the engine.
 
 - ``serial``: one run after the other in this process.
+- ``batch``: the rows on ``workers`` threads of this process (:func:`_batch`): rows on the native kernel
+  step at once, rows on the Python control path one at a time; no process to start, nothing to pickle.
 - ``processes``: a ``concurrent.futures`` pool of ``workers`` processes, forked from this one where
   that is safe (:func:`start_method`: Linux, no other thread, no simulation running), else spawned.
   A forked worker starts in milliseconds with everything this process imported and the scenarios it
@@ -16,7 +18,8 @@ table). A run's result depends on its parameters only, so the table does not dep
   cluster's workers are forked from a forkserver (:func:`local_worker_method`) that imported
   distributed and what a row runs once, so a worker starts without paying those imports again.
 
-One simulation at a time per process, whatever the engine: :func:`guarded` holds the process's
+One simulation at a time per process on the serial, processes and Dask engines (the batch engine's
+threads wait for MuJoCo's callback slot instead, :func:`_batch`): :func:`guarded` holds the process's
 :data:`ftstab_mj.plants.callback.ONE_RUN` lock for the whole run, so on an external cluster whose workers
 have several threads (``dask worker`` starts several by default) the threads of one worker take
 turns, and the table is the serial one. A per-process lock rather than worker resources (a task
@@ -64,7 +67,7 @@ from ftstab_mj.config.errors import EngineError, UsageError
 from ftstab_mj.simulation.records import FAILED
 
 
-ENGINES = ("serial", "processes", "dask")
+ENGINES = ("serial", "batch", "processes", "dask")
 GUIDED = 2  # a chunk holds about 1 / (GUIDED x workers) of the rows not yet handed out (guided scheduling)
 MIN_CHUNK = 2  # rows per task at least, unless a worker would be left without a task (chunks())
 MAX_CHUNK = 32  # rows per task at most: a lost chunk (dead worker) costs a resume at most this many rows
@@ -89,16 +92,17 @@ QUIET = {"distributed.worker.profile.enabled": False, "distributed.admin.tick.in
          "distributed.admin.system-monitor.interval": "5s", "distributed.worker.memory.monitor-interval": "1s"}
 
 
-def guarded(task: Callable[[int, tuple], dict], index: int, params: tuple) -> dict:
+def guarded(task: Callable[[int, tuple], dict], index: int, params: tuple, one_run=ONE_RUN) -> dict:
     """``task(index, params)`` with any exception turned into a failed result; adds ``elapsed_s`` (wall s)
     and ``started_at`` (when the run started, ``time.time()`` of the process that ran it: Unix s).
 
     A failed result is ``{"status": "failed", "error": "<ExceptionType>: <message>", "metrics": {}}``.
     KeyboardInterrupt is not caught: an interrupted run is not a result. The run holds
     :data:`~ftstab_mj.plants.callback.ONE_RUN` (one simulation at a time per process); ``elapsed_s`` does not
-    count the wait for it.
+    count the wait for it. ``one_run``: the lock held for the run (the batch engine's threads hold none:
+    they wait for MuJoCo's callback slot themselves, :func:`_batch`).
     """
-    with ONE_RUN:
+    with one_run:
         started_at = time.time()
         t0 = time.perf_counter()
         try:
@@ -164,12 +168,55 @@ def execute(items: Iterable[tuple[int, tuple]], task: Callable[[int, tuple], dic
     if engine == "serial":  # row by row: nothing to amortize, and a Ctrl-C loses no finished row
         for i, params in items:
             yield i, guarded(task, i, params)
+    elif engine == "batch":
+        yield from _batch(items, task, workers)
     elif engine == "processes":
         yield from _processes(items, task, workers, meanwhile)
     elif engine == "dask":
         yield from _dask(items, task, workers, scheduler, meanwhile, ahead)
     else:
         raise EngineError(f"engine: expected one of {', '.join(ENGINES)}, found {engine!r}")
+
+
+def _batch(items, task, workers: int) -> Iterator[tuple[int, dict | None]]:
+    """The rows on ``workers`` threads of this process, each thread taking the next row as it is free.
+
+    A row whose control runs on the native kernel shares MuJoCo's control callback with the rows of the
+    other threads (the kernel finds each call's run from its MjData) and steps while they step (MuJoCo
+    releases the GIL in mj_step); a row on the Python control path (a law or integrator without a C
+    twin) waits for the callback slot to itself (:func:`~ftstab_mj.plants.callback.waiting_for_slot`).
+    Each run is the serial engine's run, so the table is the serial table at any thread count. A
+    Ctrl-C stops the sweep once the rows running have ended; the rows not started are left for a resume.
+    """
+    import threading
+    from concurrent.futures import FIRST_COMPLETED, ThreadPoolExecutor, wait
+    from contextlib import nullcontext
+
+    from ftstab_mj.plants.callback import waiting_for_slot
+
+    def row(i, params):
+        with waiting_for_slot():
+            return i, guarded(task, i, params, one_run=nullcontext())
+
+    pending, queue = set(), iter(items)
+    stop = threading.Event()
+    with ThreadPoolExecutor(max(1, workers), thread_name_prefix="ftstab-batch") as pool:
+        try:
+            while True:
+                while len(pending) < 2 * max(1, workers) and not stop.is_set():  # a few rows ahead, not the sweep
+                    nxt = next(queue, None)
+                    if nxt is None:
+                        stop.set()
+                        break
+                    pending.add(pool.submit(row, *nxt))
+                if not pending:
+                    return
+                done, pending = wait(pending, return_when=FIRST_COMPLETED)
+                for f in done:
+                    yield f.result()
+        finally:
+            for f in pending:
+                f.cancel()
 
 
 def start_method() -> str:

@@ -1,0 +1,138 @@
+"""The batch engine against the serial one, Monte Carlo on the plant against bare stepping, chain memory.
+
+    python -m benchmarks.batch_engine [--rows 96] [--states 200] [--chain-states 2000] [--repeat 3]
+
+Prints, measured in this one run (alternated, medians of --repeat):
+
+1. ``ftstab sweep`` of --rows rows of 2 s on the r = 2 robust cart (a grid over the disturbance's
+   amplitude): CPU s of the whole process (children included) for --engine serial, batch --workers 1
+   and batch --workers 2, their ratios to serial, the wall-time speed-up of 2 threads over 1, and
+   whether the three tables agree in every column but the elapsed time.
+2. ``ftstab montecarlo --on plant --engine batch`` on the same cart, --states states of 2 s: CPU s of
+   the whole process against a bare reference, one process that steps the same states (mj_step over
+   the same number of steps on one MjData, reset to each z0) after importing the same modules.
+3. ``ftstab montecarlo --on chain`` of --chain-states states at 10 s and 50 s simulated: the peak RSS
+   of each process, and their ratio.
+"""
+
+import argparse
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+CART = ROOT / "scenarios" / "cart_r2_robust.toml"
+
+BARE = """
+import sys, numpy as np, mujoco
+import ftstab_mj.studies.montecarlo, ftstab_mj.scenario.run  # what the command imports
+from ftstab_mj.plants import make_plant
+from ftstab_mj.plants.callback import timer_off
+from ftstab_mj.studies import montecarlo as mc
+states, duration = int(sys.argv[1]), float(sys.argv[2])
+plant = make_plant("cart")
+m, d, _ = plant.compile(0.001)
+Z0 = mc.Distribution(states, (1.0, 1.0), seed=0).draw()
+steps = int(round(duration / 0.001))
+with timer_off():  # as the runs step (no profiling timer)
+    for z in Z0:
+        mujoco.mj_resetData(m, d)
+        d.qpos[0], d.qvel[0] = z
+        mujoco.mj_step(m, d, nstep=steps)
+"""
+
+
+# a fresh process runs the command and reports its children's CPU and peak RSS: only this command's
+WRAP = ("import resource, subprocess, sys; r = subprocess.run(sys.argv[1:]); "
+        "u = resource.getrusage(resource.RUSAGE_CHILDREN); "
+        "print(r.returncode, u.ru_utime + u.ru_stime, u.ru_maxrss, file=sys.stderr)")
+
+
+def run(cmd: list, cwd) -> tuple[float, float, float]:
+    """(CPU s of the command's processes, wall s, peak RSS MB of the largest) of one command."""
+    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    w0 = time.perf_counter()
+    res = subprocess.run([sys.executable, "-c", WRAP, *map(str, cmd)], cwd=cwd, env=env, capture_output=True,
+                         text=True)
+    wall = time.perf_counter() - w0
+    code, cpu, rss = res.stderr.strip().splitlines()[-1].split()
+    if int(code) != 0:
+        sys.exit(f"benchmark command failed: {' '.join(map(str, cmd))}\n{res.stderr}")
+    return float(cpu), wall, int(rss) / 1024
+
+
+def sweep_file(tmp: Path, rows: int) -> Path:
+    amps = ", ".join(f"{0.1 + 0.9 * i / max(1, rows - 1):.6f}" for i in range(rows))
+    path = tmp / "bench.toml"
+    path.write_text(f'name = "bench"\ndescription = "batch engine benchmark"\nscenario = "{CART}"\n'
+                    f'[set]\n"sim.duration" = 2.0\n[grid]\n"loops.cart.disturbance.amplitude" = [{amps}]\n')
+    return path
+
+
+def table(path: Path) -> dict:
+    """The sweep's table but its varying columns (elapsed time)."""
+    from ftstab_mj.studies.sweep.table import VARYING_COLUMNS, read_table
+
+    return {k: v for k, v in read_table(path).items() if k not in VARYING_COLUMNS}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--rows", type=int, default=96)
+    ap.add_argument("--states", type=int, default=200)
+    ap.add_argument("--chain-states", type=int, default=2000)
+    ap.add_argument("--repeat", type=int, default=3)
+    args = ap.parse_args()
+    py = [sys.executable, "-m", "ftstab_mj"]
+    with tempfile.TemporaryDirectory(prefix="ftstab-bench-") as tmp:
+        tmp = Path(tmp)
+        sweep = sweep_file(tmp, args.rows)
+        engines = {"serial": [], "batch1": ["--engine", "batch"], "batch2": ["--engine", "batch", "--workers", "2"]}
+        cpu = {k: [] for k in engines}
+        wall = {k: [] for k in engines}
+        tables = {}
+        for rep in range(args.repeat):
+            for name, extra in engines.items():
+                out = tmp / f"{name}{rep}"
+                c, w, _ = run(py + ["sweep", str(sweep), "--out", str(out)] + extra, tmp)
+                cpu[name].append(c)
+                wall[name].append(w)
+                tables[name] = table(out / "bench.parquet")
+        med = {k: statistics.median(v) for k, v in cpu.items()}
+        medw = {k: statistics.median(v) for k, v in wall.items()}
+        print(f"1. sweep of {args.rows} rows of 2 s on the cart (load {os.getloadavg()[0]:.2f}), CPU s of the whole "
+              f"process: serial {med['serial']:.2f}, batch --workers 1 {med['batch1']:.2f} "
+              f"({med['batch1'] / med['serial']:.2f}x serial), batch --workers 2 {med['batch2']:.2f} "
+              f"({med['batch2'] / med['serial']:.2f}x serial; goal <= 0.5x); wall speed-up of 2 threads over 1: "
+              f"{medw['batch1'] / medw['batch2']:.2f}x; tables identical but elapsed time: "
+              f"{tables['batch1'] == tables['serial'] and tables['batch2'] == tables['serial']}")
+
+        mc_cpu, bare_cpu = [], []
+        bare = tmp / "bare.py"
+        bare.write_text(BARE)
+        for rep in range(args.repeat):
+            c, _, _ = run(py + ["montecarlo", str(CART), "--on", "plant", "--engine", "batch", "--states",
+                                str(args.states), "--set", "sim.duration=2", "--out", str(tmp / f"mc{rep}")], tmp)
+            mc_cpu.append(c)
+            c, _, _ = run([sys.executable, str(bare), str(args.states), "2.0"], tmp)
+            bare_cpu.append(c)
+        a, b = statistics.median(mc_cpu), statistics.median(bare_cpu)
+        print(f"2. montecarlo --on plant --engine batch, {args.states} states of 2 s on the cart: {a:.2f} CPU s "
+              f"against {b:.2f} for bare stepping of the same states: {a / b:.2f}x (goal <= 1.4x)")
+
+        peaks = {}
+        for duration in (10, 50):
+            _, _, rss = run(py + ["montecarlo", str(CART), "--on", "chain", "--states", str(args.chain_states),
+                                  "--set", f"sim.duration={duration}", "--out", str(tmp / f"chain{duration}"),
+                                  "--json"], tmp)
+            peaks[duration] = rss
+        print(f"3. montecarlo --on chain, {args.chain_states} states: peak RSS {peaks[10]:.0f} MB at 10 s, "
+              f"{peaks[50]:.0f} MB at 50 s: {peaks[50] / peaks[10]:.2f}x (goal <= 1.2x)")
+
+
+if __name__ == "__main__":
+    main()
