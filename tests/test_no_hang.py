@@ -89,7 +89,7 @@ def busy_workers(proc, n=2, cpu=0.3):
     return wait_for(running, 30, f"{n} workers running rows")
 
 
-def comparison(tmp_path, duration=12.0):
+def comparison(tmp_path, duration=150.0):
     """2 laws x 2 periods of the r = 2 cart; each row ~1 s and returns its time series (a result larger than
     a pipe's buffer: the pool of issue 44 hung on a worker blocked writing it)."""
     path = tmp_path / "tiny.toml"

@@ -210,8 +210,14 @@ class AssumedBounds:
         self.phi, self.g_lo, self.g_hi = 0.0, math.inf, -math.inf  # over the samples so far
         self.reason = None  # the first departure, a sentence
 
+    # The logged phi and gamma are MuJoCo's float64 recomputation of the quantities a plant's bounds were
+    # computed from (e.g. gamma_m met with equality at the start pose): they may differ from them by rounding,
+    # a few hundred ulps of the mass matrix's factorisation. A departure smaller than this (relative) is that.
+    ROUNDING = 1e-12
+
     def _holds(self, phi, g_lo, g_hi) -> bool:
-        return bool(self.law.bound_holds(self.loop.law_params, phi, g_lo, g_hi))
+        r = self.ROUNDING
+        return bool(self.law.bound_holds(self.loop.law_params, phi * (1 - r), g_lo + r * abs(g_lo), g_hi - r * abs(g_hi)))
 
     def update(self, t, phi, gamma) -> None:
         if self.reason is not None or len(t) == 0:
@@ -824,7 +830,7 @@ class _LoopStream:
         self.sq_sum.update(u * u)
         self.u_max = _nan_max(self.u_max, np.max(np.abs(u)))
         self.phi_hat_max = _nan_max(self.phi_hat_max, np.max(a["phi_hat"]))
-        if self.assumed is not None:
+        if self.assumed is not None and "phi" in a:  # a stream without the true phi, gamma has nothing to check
             self.assumed.update(t, a["phi"], a["gamma"])
         ext = extremes(z, u)
         self.ext = ext if self.ext is None else np.array([np.fmin(self.ext[0], ext[0]), *np.fmax(self.ext[1:], ext[1:])])
