@@ -216,8 +216,9 @@ class AssumedBounds:
     ROUNDING = 1e-12
 
     def _holds(self, phi, g_lo, g_hi) -> bool:
-        r = self.ROUNDING
-        return bool(self.law.bound_holds(self.loop.law_params, phi * (1 - r), g_lo + r * abs(g_lo), g_hi - r * abs(g_hi)))
+        r, p = self.ROUNDING, self.loop.law_params
+        return bool(self.law.bound_holds(p, phi, g_lo, g_hi)  # as logged (a law may ask equality: gamma = 1)
+                    or self.law.bound_holds(p, phi * (1 - r), g_lo + r * abs(g_lo), g_hi - r * abs(g_hi)))
 
     def update(self, t, phi, gamma) -> None:
         if self.reason is not None or len(t) == 0:
