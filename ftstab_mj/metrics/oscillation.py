@@ -25,6 +25,8 @@ Predicted: the limit cycle that harmonic balance gives for the loop's law throug
 
 from __future__ import annotations
 
+import functools
+import json
 import math
 
 import numpy as np
@@ -84,8 +86,6 @@ def predicted_limit_cycle(loop, period: float) -> dict | None:
     """The describing-function limit cycle (LimitCycle.as_dict, plus "delay" s) of a loop (LoopInfo)
     with an actuator lag, its law rebuilt from the log's parameters; the sampled law's delay h / 2 plus
     the sensor's whole periods. None without a lag, or when harmonic balance has no solution."""
-    from ftstab_mj.control.describing import harmonic_balance
-    from ftstab_mj.config.errors import ParameterError
     from ftstab_mj.control.law import declared
 
     stages = getattr(loop, "stages", None)
@@ -98,11 +98,26 @@ def predicted_limit_cycle(loop, period: float) -> dict | None:
     values = {p.name: p.default for p in cls.all_params() if not p.required}
     values.update({k: v for k, v in (loop.hong or {}).items() if k != "r"})
     values.update(loop.law_params or {})
+    delay = period * (0.5 + stages["sensor"].get("delay", 0))
     try:
-        law = cls.from_params(loop.r, values).for_period(period)
+        key = json.dumps(values, sort_keys=True, default=repr)
+    except (TypeError, ValueError):
+        return None
+    lc = _predicted(cls, loop.r, key, period, float(act["tau"]), int(act.get("lag_order", 1)), delay)
+    return None if lc is None else {**lc, "delay": delay}
+
+
+@functools.lru_cache(maxsize=256)
+def _predicted(cls, r: int, values_json: str, period: float, tau: float, lag_order: int, delay: float):
+    """predicted_limit_cycle's harmonic balance (about 0.7 s CPU for Hong's law), once per law, parameters
+    and actuator in a process: the rows of a sweep or a comparison that differ in anything else (seed,
+    initial state, integrator, plant mass) share it."""
+    from ftstab_mj.config.errors import ParameterError
+    from ftstab_mj.control.describing import harmonic_balance
+
+    try:
+        law = cls.from_params(r, json.loads(values_json)).for_period(period)
     except (ParameterError, KeyError, TypeError, ValueError):  # a log whose parameters this version cannot rebuild: nothing is predicted
         return None
-    delay = period * (0.5 + stages["sensor"].get("delay", 0))
-    lc = harmonic_balance(law, float(act["tau"]), int(act.get("lag_order", 1)), delay,
-                          w_range=(1e-2 / float(act["tau"]), math.pi / period))
-    return None if lc is None else {**lc.as_dict(), "delay": delay}
+    lc = harmonic_balance(law, tau, lag_order, delay, w_range=(1e-2 / tau, math.pi / period))
+    return None if lc is None else lc.as_dict()
