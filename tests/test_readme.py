@@ -65,10 +65,10 @@ def _design(*args):
 
 
 def test_the_docs_design_examples_are_what_design_prints():
-    """The figures of the `ftstab design` examples in docs/commands.md (max-c, min-time at r = 2, --u-max
+    """The figures of the `ftstab design` examples in docs/commands/design.md (max-c, min-time at r = 2, --u-max
     at r = 3) are what the command prints today (it is deterministic): gains to their 5 printed digits,
     c_lower, T(z0) and max |u0| to the digits the page gives. They had gone stale (6.8565 for 6.8587, ...)."""
-    text = " ".join((ROOT / "docs" / "commands.md").read_text().split())
+    text = " ".join((ROOT / "docs" / "commands" / "design.md").read_text().split())
     num = r"([0-9]+(?:\.[0-9]+)?)"
     m = re.search(rf"e\.g\. r = 2, k = -0\.2 gives gains {num}, {num} with c_lower = {num}", text)
     d = _design("--r", 2, "--k", -0.2)
