@@ -75,3 +75,15 @@ def test_the_first_pages_look_at_a_run_with_ftstab_view():
         assert view >= 0, page.name
         assert not re.search(r"rerun (--serve-web )?runs/\S+\.rrd", text[:view]), page.name
         assert "writes `runs/cart_r2_robust.mcap` and `runs/cart_r2_robust.rrd`" not in text, page.name
+
+
+def test_the_scenario_file_pages_example_is_a_valid_scenario(tmp_path):
+    """The annotated file at the top of the scenario file page, copied as it is, loads (it had a set
+    point and a reference table together, which the loader refuses)."""
+    import ftstab_mj
+
+    text = (DOCS / "scenario-file.md").read_text()
+    path = tmp_path / "example.toml"
+    path.write_text(re.search(r"```toml\n(.*?)```", text, re.S).group(1))
+    sc = ftstab_mj.load_scenario(path)
+    assert sc.name == "cart_r2_robust" and sc.loops[0].reference.kind == "sine"
