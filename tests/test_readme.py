@@ -151,3 +151,13 @@ def test_the_docs_site_builds_strictly(tmp_path):
                           env=env, timeout=300)
     assert proc.returncode == 0, proc.stderr[-4000:]
     assert (tmp_path / "site" / "index.html").exists() and (tmp_path / "site" / "api" / "index.html").exists()
+
+
+def test_the_first_screen_answers_run_view_headless_robot_law_compare():
+    """Within the README's first 40 lines (a screen): how to run, to view (headless too), to bring a
+    robot, to write a law, to compare laws, each with its command or its key."""
+    head = "\n".join((ROOT / "README.md").read_text().splitlines()[:40])
+    for needle in ("python -m ftstab_mj run scenarios/cart_r2_robust.toml", "`ftstab view runs/cart_r2_robust.mcap`",
+                   "without a display", "bring your own robot", '`[plant] model = "my_robot.xml"`',
+                   "write your own law", "register", "compare laws", "`ftstab compare "):
+        assert needle in head, needle
