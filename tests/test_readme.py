@@ -65,10 +65,10 @@ def _design(*args):
 
 
 def test_the_docs_design_examples_are_what_design_prints():
-    """The figures of the `ftstab design` examples in docs/commands.md (max-c, min-time at r = 2, --u-max
+    """The figures of the `ftstab design` examples in docs/commands/design.md (max-c, min-time at r = 2, --u-max
     at r = 3) are what the command prints today (it is deterministic): gains to their 5 printed digits,
     c_lower, T(z0) and max |u0| to the digits the page gives. They had gone stale (6.8565 for 6.8587, ...)."""
-    text = " ".join((ROOT / "docs" / "commands.md").read_text().split())
+    text = " ".join((ROOT / "docs" / "commands" / "design.md").read_text().split())
     num = r"([0-9]+(?:\.[0-9]+)?)"
     m = re.search(rf"e\.g\. r = 2, k = -0\.2 gives gains {num}, {num} with c_lower = {num}", text)
     d = _design("--r", 2, "--k", -0.2)
@@ -151,3 +151,13 @@ def test_the_docs_site_builds_strictly(tmp_path):
                           env=env, timeout=300)
     assert proc.returncode == 0, proc.stderr[-4000:]
     assert (tmp_path / "site" / "index.html").exists() and (tmp_path / "site" / "api" / "index.html").exists()
+
+
+def test_the_first_screen_answers_run_view_headless_robot_law_compare():
+    """Within the README's first 40 lines (a screen): how to run, to view (headless too), to bring a
+    robot, to write a law, to compare laws, each with its command or its key."""
+    head = "\n".join((ROOT / "README.md").read_text().splitlines()[:40])
+    for needle in ("python -m ftstab_mj run scenarios/cart_r2_robust.toml", "`ftstab view runs/cart_r2_robust.mcap`",
+                   "without a display", "bring your own robot", '`[plant] model = "my_robot.xml"`',
+                   "write your own law", "register", "compare laws", "`ftstab compare "):
+        assert needle in head, needle
