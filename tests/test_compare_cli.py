@@ -7,6 +7,7 @@ import pyarrow.parquet as pq
 import pytest
 
 from conftest import ROOT, run_cli
+from ftstab_mj.studies.compare import format_rows
 
 SHIPPED = sorted((ROOT / "scenarios" / "compare").glob("*.toml"))
 COLUMNS = ("label", "law", "discretization", "sim.period", "status", "settle_time_z1", "final_abs_z1", "effort_sq",
@@ -21,9 +22,10 @@ def _read_csv(path):
 
 @pytest.mark.parametrize("path", SHIPPED, ids=lambda p: p.stem)
 def test_shipped_comparison_runs_through_the_cli(path, tmp_path):
-    """Each shipped comparison, shortened to 0.3 s: one completed row per law and period, in CSV and
-    Parquet alike, the slopes table with one row per law, both figures written as PNG."""
-    res = run_cli("compare", path, "--set", "sim.duration=0.3", "--out", tmp_path, "--workers", "2")
+    """Each shipped comparison by its name (as `sweep` takes shipped names), shortened to 0.3 s: one
+    completed row per law and period, in CSV, Parquet and Markdown alike, the slopes table with one row per
+    law, both figures written as PNG, the printed table no wider than a terminal's 100 columns."""
+    res = run_cli("compare", path.stem, "--set", "sim.duration=0.3", "--out", tmp_path, "--workers", "2")
     assert res.returncode == 0, res.stderr[-2000:]
     name = path.stem
     rows = _read_csv(tmp_path / f"{name}.csv")
@@ -42,6 +44,24 @@ def test_shipped_comparison_runs_through_the_cli(path, tmp_path):
     for fig in (f"{name}_accuracy.png", f"{name}_time.png"):
         assert (tmp_path / fig).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert "log-log slopes" in res.stdout and "levant_qc" in res.stdout
+    printed = res.stdout.split("\n", 3)[3]  # after the header (name: description, its base, its runs)
+    assert max(len(line) for line in printed.splitlines() if not line.startswith("wrote ")) <= 100  # paths: the user's
+    md = [line for line in (tmp_path / f"{name}.md").read_text().splitlines() if line.startswith("| ")]
+    assert len(md) == 1 + len(rows) + 1 + len(labels)  # runs (header + rows), slopes (header + one per law)
+    assert [line.split(" | ")[0][2:] for line in md[1:1 + len(rows)]] == [row["label"] for row in rows]
+
+
+def test_the_printed_table_wraps_to_the_width_and_repeats_the_label():
+    """format_rows with a width: every line fits, every cell is printed once, each block starts with the label."""
+    rows = [{"label": f"law {i}", **{f"column_{j}": 10.0 ** (i - j) for j in range(12)}} for i in range(3)]
+    columns = list(rows[0])
+    text = format_rows(rows, columns, width=60)
+    blocks = text.split("\n\n")
+    assert len(blocks) > 1 and max(map(len, text.splitlines())) <= 60
+    assert all(b.splitlines()[0].startswith("label") for b in blocks)
+    headers = [h for b in blocks for h in b.splitlines()[0].split()]
+    assert headers.count("label") == len(blocks) and sorted(set(headers) - {"label"}) == sorted(columns[1:])
+    assert [line.split()[:2] for line in blocks[-1].splitlines()[1:]] == [["law", str(i)] for i in range(3)]
 
 
 def _write(tmp_path, text):

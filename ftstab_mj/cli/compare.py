@@ -16,12 +16,13 @@ def add_parser(sub) -> None:
         description="Run every law of COMPARISON (whole controller tables) on its base scenario, at every "
                     "value of its optional grid (control period or disturbance amplitude); print one table "
                     "(laws as rows: settling time, final accuracy per z_i, effort, max |u|, chattering "
-                    "indices, bound beaten), write it to DIR/<name>.csv and .parquet, the log-log slopes "
+                    "indices, bound beaten; wrapped to 100 columns, effort and three chattering indices left to the "
+                    "files), write it to DIR/<name>.csv, .parquet (every column) and .md, the log-log slopes "
                     "of the accuracy against the period to DIR/<name>_slopes.csv, and the figures "
                     "DIR/<name>_accuracy.png and DIR/<name>_time.png. Exit 0 when every run is in the "
                     "table (a diverged run is a row with its status), 2 on bad input.",
-        epilog="example: ftstab compare scenarios/compare/cart_r2.toml --workers 2")
-    cp.add_argument("comparison", help="comparison file (.toml)")
+        epilog="example: ftstab compare cart_r2 --workers 2 (= scenarios/compare/cart_r2.toml)")
+    cp.add_argument("comparison", help="comparison file (.toml) or shipped comparison name (scenarios/compare/)")
     cp.add_argument("--workers", type=workers, default=1, metavar="N",
                     help="parallel runs on a local process pool (default 1: serial; 'all': one per core)")
     cp.add_argument("--engine", choices=("serial", "batch", "processes"),
@@ -40,7 +41,7 @@ def handle(args) -> int:
     from ftstab_mj.studies.sweep.engine import execute
     from ftstab_mj.studies.sweep.table import write_table
 
-    cmp = compare.load_comparison(args.comparison)
+    cmp = compare.load_comparison(compare.find_comparison(args.comparison))
     task, items = compare.prepare(cmp, args.set)  # every row validated before any run
     engine = compare.engine_for(args.workers, args.engine)
     out = Path(args.out or Path("runs") / cmp.name)
@@ -49,14 +50,17 @@ def handle(args) -> int:
     print(f"  base {cmp.scenario}, {len(cmp.laws)} laws x {max(1, len(cmp.grid))} -> {len(items)} runs -> {out}")
     results = dict(execute(items, task, engine, args.workers))
     rows, series, columns = compare.assemble(cmp, task, items, results)
-    print(compare.format_rows(rows, columns))
+    keep = 2 if cmp.grid_path else 1  # each wrapped block repeats the label and the grid value
+    print(compare.format_rows(rows, compare.terminal_columns(columns), compare.TERMINAL_WIDTH, keep))
     paths = [compare.write_csv(rows, out / f"{cmp.name}.csv"), write_table(rows, out / f"{cmp.name}.parquet")]
-    slopes = []
+    sections = [("runs", rows, columns)]
     if cmp.grid_path and len(cmp.grid) >= 2:
         slopes = compare.fit_slopes(rows, cmp.grid_path)
         print(f"log-log slopes of max |z_i| against {cmp.grid_path} ({len(cmp.grid)} values):")
-        print(compare.format_rows(slopes, list(slopes[0])))
+        print(compare.format_rows(slopes, list(slopes[0]), compare.TERMINAL_WIDTH))
         paths.append(compare.write_csv(slopes, out / f"{cmp.name}_slopes.csv"))
+        sections.append((f"log-log slopes of max |z_i| against {cmp.grid_path}", slopes, list(slopes[0])))
+    paths.append(compare.write_markdown(sections, out / f"{cmp.name}.md", f"{cmp.name}: {cmp.description}"))
     from ftstab_mj.figures.compare_report import draw_figures
 
     where = f" at {cmp.grid_path} = {cmp.grid[0]:g}" if cmp.grid_path else ""

@@ -51,8 +51,11 @@ from ftstab_mj.config.errors import ScenarioError, SweepError, UsageError, descr
 from ftstab_mj.simulation.records import COMPLETED
 from ftstab_mj.scenario.loader import apply_override, resolve_relative_paths, scenario_with
 from ftstab_mj.scenario.schema import identifier, one_line
+from ftstab_mj.scenario.shipped import SCENARIO_DIR, find_scenario
 from ftstab_mj.config.tomlfile import read_toml
 
+TERMINAL_WIDTH = 100  # characters of the printed table (the files hold every column)
+TERMINAL_DROPS = ("effort_sq", "chattering_du_dt_var", "chattering_zero_crossings", "chattering_band_rms")
 SERIES_POINTS = 4000  # samples kept per law for the time plot (evenly strided)
 INDICES = (("chattering", "chattering_tv"), ("chattering_du_dt_var", "chattering_du_dt_var"),
            ("chattering_zero_crossings", "chattering_zero_crossings"), ("chattering_band_rms", "chattering_band_rms"))
@@ -274,6 +277,12 @@ def assemble(cmp: Comparison, task, items, results: dict) -> tuple[list[dict], d
     return rows, series, columns
 
 
+def terminal_columns(columns: list[str]) -> list[str]:
+    """The columns printed on a terminal: the table's without those that only the files need to hold
+    (effort and three of the four chattering indices; the total variation of u stays)."""
+    return [c for c in columns if c not in TERMINAL_DROPS]
+
+
 def lost_line(rows: list[dict], what: str = "run") -> str | None:
     """None when no row was lost by the engine, else the one line an exit status 1 comes with, naming the rows
     (a table with lost rows is not the comparison asked for: issue 44, W4). Rows are dicts with "row" and
@@ -329,9 +338,47 @@ def _fmt(v) -> str:
     return str(v)
 
 
-def format_rows(rows: list[dict], columns: list[str]) -> str:
-    """A fixed-width text table of ``columns`` (laws as rows)."""
+def format_rows(rows: list[dict], columns: list[str], width: int | None = None, keep: int = 1) -> str:
+    """A fixed-width text table of ``columns`` (laws as rows). With ``width`` (characters), the columns
+    are wrapped into blocks no wider than it (unless one column alone is), each block repeating the first
+    ``keep`` columns (the label, the grid value) so every line still says whose row it is."""
     cells = [[_fmt(row.get(c)) for c in columns] for row in rows]
-    width = [max(len(c), *(len(r[j]) for r in cells)) for j, c in enumerate(columns)]
-    line = lambda vals: "  ".join(v.ljust(w) if j == 0 else v.rjust(w) for j, (v, w) in enumerate(zip(vals, width)))
-    return "\n".join([line(columns)] + [line(r) for r in cells])
+    widths = [max(len(c), *(len(r[j]) for r in cells)) for j, c in enumerate(columns)]
+
+    def block(idx):
+        line = lambda vals: "  ".join(vals[j].ljust(widths[j]) if j == 0 else vals[j].rjust(widths[j])
+                                      for j in idx).rstrip()
+        return "\n".join([line(columns)] + [line(r) for r in cells])
+
+    if width is None:
+        return block(range(len(columns)))
+    head, blocks, cur = list(range(min(keep, len(columns)))), [], []
+    used = sum(widths[j] + 2 for j in head)
+    for j in range(len(head), len(columns)):
+        if cur and used + widths[j] > width:
+            blocks.append(head + cur)
+            cur, used = [], sum(widths[j] + 2 for j in head)
+        cur.append(j)
+        used += widths[j] + 2
+    blocks.append(head + cur)
+    return "\n\n".join(block(idx) for idx in blocks)
+
+
+def write_markdown(sections: list[tuple[str, list[dict], list[str]]], path: Path, title: str = "") -> Path:
+    """A Markdown file of one table per (heading, rows, columns) section, values as printed (3 digits)."""
+    esc = lambda text: text.replace("|", "\\|")
+    out = [f"# {esc(title)}", ""] if title else []
+    for heading, rows, columns in sections:
+        out += [f"## {esc(heading)}", "", "| " + " | ".join(map(esc, columns)) + " |",
+                "|" + "---|" * len(columns)]
+        out += ["| " + " | ".join(esc(_fmt(row.get(c))) for c in columns) + " |" for row in rows]
+        out.append("")
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text("\n".join(out), encoding="utf-8")
+    tmp.replace(path)
+    return path
+
+
+def find_comparison(arg: str) -> Path:
+    """``arg`` as a path, else the shipped comparison scenarios/compare/<arg>.toml (as ``sweep`` finds its own)."""
+    return find_scenario(arg, SCENARIO_DIR / "compare")
