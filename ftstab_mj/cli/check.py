@@ -14,13 +14,14 @@ def add_parser(sub) -> None:
     ck = sub.add_parser("check", help="compare a log's metrics with pinned values and tolerances",
                         description="Exit 0 when every expectation of EXPECT.toml holds for the metrics "
                                     "recomputed from LOG.mcap, 1 with the failing ones listed otherwise (or when the "
-                                    "log has no samples to check them on). Format: "
-                                    "see ftstab_mj/metrics/expectations.py.")
+                                    "log has no samples to check them on). EXPECT.toml: one table per loop, "
+                                    "metric = value with a tolerance; `--pin` writes one to start from "
+                                    "(format: docs/logs.md, \"Replay and regression\").")
     ck.add_argument("log", metavar="LOG.mcap")
     what = ck.add_mutually_exclusive_group(required=True)
     what.add_argument("--expect", metavar="EXPECT.toml", help="the pinned metrics to compare with")
     what.add_argument("--pin", metavar="OUT.toml", help="write OUT.toml: this log's metrics with the default "
-                                                       "tolerances (ftstab_mj/metrics/expectations.py), to check later runs")
+                                                       "tolerances, to check later runs")
     ck.set_defaults(func=handle)
 
 

@@ -116,7 +116,7 @@ def handle(args) -> int:
             print(format_table(run.metrics))
             print(f"logs: {'  '.join(map(str, paths))}")
             if run_logs.rrd is None:
-                print(f"look: ftstab view {paths[0]}  (Rerun: the plant in 3D, z, u, V1 with Theorem 1's envelope)")
+                print(f"look: ftstab view {paths[0]}  (Rerun: the plant in 3D and every logged signal)")
         status = run.result.status
         if status == "completed":
             return 0
