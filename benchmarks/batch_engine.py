@@ -1,6 +1,6 @@
 """The batch engine against the serial one, Monte Carlo on the plant against bare stepping, chain memory.
 
-    python -m benchmarks.batch_engine [--rows 96] [--states 200] [--chain-states 2000] [--repeat 3]
+    python -m benchmarks.batch_engine [--rows 96] [--states 200] [--chain-states 2000] [--long 100] [--repeat 3]
 
 Prints, measured in this one run (alternated, medians of --repeat):
 
@@ -13,6 +13,8 @@ Prints, measured in this one run (alternated, medians of --repeat):
    the same number of steps on one MjData, reset to each z0) after importing the same modules.
 3. ``ftstab montecarlo --on chain`` of --chain-states states at 10 s and 50 s simulated: the peak RSS
    of each process, and their ratio.
+4. The same sweep with rows of --long s (>= 20 s of row CPU at the default 100 s: set-up amortized):
+   the wall-time speed-up of ``--engine batch --workers 2`` over ``--workers 1``, and their CPU s.
 """
 
 import argparse
@@ -65,11 +67,11 @@ def run(cmd: list, cwd) -> tuple[float, float, float]:
     return float(cpu), wall, int(rss) / 1024
 
 
-def sweep_file(tmp: Path, rows: int) -> Path:
+def sweep_file(tmp: Path, rows: int, duration: float = 2.0, name: str = "bench") -> Path:
     amps = ", ".join(f"{0.1 + 0.9 * i / max(1, rows - 1):.6f}" for i in range(rows))
-    path = tmp / "bench.toml"
-    path.write_text(f'name = "bench"\ndescription = "batch engine benchmark"\nscenario = "{CART}"\n'
-                    f'[set]\n"sim.duration" = 2.0\n[grid]\n"loops.cart.disturbance.amplitude" = [{amps}]\n')
+    path = tmp / f"{name}.toml"
+    path.write_text(f'name = "{name}"\ndescription = "batch engine benchmark"\nscenario = "{CART}"\n'
+                    f'[set]\n"sim.duration" = {duration}\n[grid]\n"loops.cart.disturbance.amplitude" = [{amps}]\n')
     return path
 
 
@@ -85,6 +87,7 @@ def main() -> None:
     ap.add_argument("--rows", type=int, default=96)
     ap.add_argument("--states", type=int, default=200)
     ap.add_argument("--chain-states", type=int, default=2000)
+    ap.add_argument("--long", type=float, default=100.0, help="s simulated per row of the speed-up sweep (4.)")
     ap.add_argument("--repeat", type=int, default=3)
     args = ap.parse_args()
     py = [sys.executable, "-m", "ftstab_mj"]
@@ -132,6 +135,20 @@ def main() -> None:
             peaks[duration] = rss
         print(f"3. montecarlo --on chain, {args.chain_states} states: peak RSS {peaks[10]:.0f} MB at 10 s, "
               f"{peaks[50]:.0f} MB at 50 s: {peaks[50] / peaks[10]:.2f}x (goal <= 1.2x)")
+
+        long = sweep_file(tmp, args.rows, args.long, "long")
+        lcpu, lwall = {1: [], 2: []}, {1: [], 2: []}
+        for rep in range(args.repeat):
+            for w in (1, 2):
+                c, wl, _ = run(py + ["sweep", str(long), "--out", str(tmp / f"long{w}-{rep}"), "--engine", "batch",
+                                     "--workers", str(w)], tmp)
+                lcpu[w].append(c)
+                lwall[w].append(wl)
+        c1, c2 = statistics.median(lcpu[1]), statistics.median(lcpu[2])
+        w1, w2 = statistics.median(lwall[1]), statistics.median(lwall[2])
+        print(f"4. sweep of {args.rows} rows of {args.long:g} s (load {os.getloadavg()[0]:.2f}), --engine batch: "
+              f"--workers 1 {w1:.2f} s wall / {c1:.2f} CPU s, --workers 2 {w2:.2f} s wall / {c2:.2f} CPU s: "
+              f"speed-up of 2 threads over 1 {w1 / w2:.2f}x (2 cores shared)")
 
 
 if __name__ == "__main__":

@@ -107,3 +107,30 @@ def test_montecarlo_on_the_plant_with_engine_batch_gives_the_serial_rows(tmp_pat
         assert res.returncode == 0, res.stderr[-2000:]
         out[name] = json.loads(res.stdout[res.stdout.index("{"):])
     assert out["batch"] == out["serial"]
+
+
+@pytest.mark.skipif(not native.available(), reason="the C kernel is not built")
+def test_a_finished_runs_mjdata_serves_the_next_run_of_its_model_bit_for_bit(monkeypatch):
+    # run_scenario gives its MjData back (plants.base.release_data) and the next run of the model steps it,
+    # reset, instead of a new one: the samples (law and actuator-lag state in userdata) and metrics must be
+    # those of a run on a new MjData
+    import numpy as np
+
+    from ftstab_mj.plants import base, make_plant
+    from ftstab_mj.scenario.loader import scenario_from_dict
+    from ftstab_mj.scenario.run import run_scenario
+
+    raw = read_toml(ROOT / "scenarios" / "cart_r2_actuator_lag.toml", "scenario")
+    raw["sim"]["duration"] = 0.3
+    sc = scenario_from_dict(raw, "cart_r2_actuator_lag.toml")
+    m, d, _ = make_plant("cart").compile(0.001)
+    base.release_data(m, d)
+    assert make_plant("cart").compile(0.001)[1] is d  # the spare one, not a new one
+    runs = [run_scenario(sc, keep_samples=True) for _ in range(2)]  # the second on the first's MjData
+    monkeypatch.setattr(base, "_SPARE", {})  # no spare MjData left: the next run makes a new one
+    fresh = run_scenario(sc, keep_samples=True)
+    for run in runs:
+        assert run.metrics == fresh.metrics
+        for name, fields in fresh.result.loops.items():
+            for f, a in fields.items():
+                assert np.array_equal(run.result.loops[name][f], a, equal_nan=True), (name, f)

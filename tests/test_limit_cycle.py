@@ -67,6 +67,22 @@ def test_oscillation_of_a_sinusoid_and_a_square_wave():
     assert o["frequency"] == pytest.approx(14.0, rel=2e-3) and o["amplitude"] == pytest.approx(2e-3, rel=2e-2)
 
 
+
+def test_oscillation_amplitude_is_the_median_half_peak_to_peak_of_its_cycles():
+    # an independent reference: the median over the cycles between successive upward crossings of
+    # (max - min) / 2, cycle by cycle in Python; cycles of unequal amplitude, so the median picks one
+    h = 1e-3
+    t = np.arange(6000) * h
+    x = (1.0 + 0.5 * np.sin(2 * np.pi * 0.3 * t)) * np.sin(2 * np.pi * 9.0 * t)
+    y = x - np.mean(x)
+    H = 0.25 * math.sqrt(float(np.dot(y, y)) / len(y))
+    idx = np.flatnonzero((y > H) | (y < -H))
+    high = y[idx] > H
+    up = idx[1:][high[1:] & ~high[:-1]]
+    ref = np.median([0.5 * (y[i:j].max() - y[i:j].min()) for i, j in zip(up[:-1], up[1:])])
+    assert len(up) > 40 and oscillation(x, h)["amplitude"] == ref
+
+
 CASES = {  # law / actuator pairs: the chattering of each is a DF limit cycle (docs/chattering.md)
     "twisting, one 20 ms lag": {"loops.cart.controller": {"law": "twisting", "r1": 5.0, "r2": 3.0},
                                 "loops.cart.actuator.tau": 0.02, "loops.cart.actuator.lag_order": 1},

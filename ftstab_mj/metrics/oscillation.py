@@ -66,7 +66,9 @@ def oscillation(x, period: float, cycle: float | None = None) -> dict:
         return none
     cycles = len(up) - 1
     freq = cycles / ((up[-1] - up[0]) * period)
-    half_pp = [0.5 * (np.max(y[i:j]) - np.min(y[i:j])) for i, j in zip(up[:-1], up[1:])]
+    # each cycle's max and min, y[up[k]:up[k+1]], in one pass (reduceat: the last slice ends at up[-1])
+    head = y[:up[-1]]
+    half_pp = 0.5 * (np.maximum.reduceat(head, up[:-1]) - np.minimum.reduceat(head, up[:-1]))
     return {"amplitude": float(np.median(half_pp)), "frequency": float(freq)}
 
 

@@ -137,6 +137,7 @@ def run_scenario(sc: Scenario, sinks=(), keep_samples: bool = False, batch_size:
     run = Run(sim, s.duration, batch_size, scenario_dict=scenario_to_dict(sc), metric_settings=sc.metrics,
               keep_samples=keep_samples)
     result, metrics = record(run, sinks, metrics=True, progress=progress)
+    sim.release()  # its MjData serves the next run of this model (a sweep's next row)
     return ScenarioRun(sc, result, metrics)
 
 

@@ -61,7 +61,7 @@ from ftstab_mj.simulation.interrupts import Interrupted, critical, interruption
 from ftstab_mj.config.errors import CallbackError, ParameterError
 from ftstab_mj.simulation.stages.pipeline import build_stages, describe_stages
 from ftstab_mj.simulation.native import run as native_run
-from ftstab_mj.plants.base import Plant
+from ftstab_mj.plants.base import Plant, release_data
 from ftstab_mj.simulation.records import (COMPLETED, DIVERGED, INTERRUPTED, LOOP_FIELDS, LoopInfo,
                                MetricSettings, RunInfo, SampleBatch)
 from ftstab_mj.config.validate import whole_steps
@@ -170,6 +170,13 @@ class Simulation:
         self._native = self._native_run(native)
         # one object, so "is it installed" is an identity test
         self.callback = self._control if self._native is None else self._native.callback
+
+    def release(self) -> None:
+        """Done with this simulation: its MjData serves the next simulation of the same model
+        (plants.base.release_data); nothing may use this one afterwards (its ``data`` is None)."""
+        data, self.data = self.data, None
+        if data is not None:
+            release_data(self.model, data)
 
     def _reference_table(self, t) -> np.ndarray:
         """(len(t), n, r + 1): ref^(j)(t) of every loop, j = 0..r (a set point: ref, then zeros)."""
