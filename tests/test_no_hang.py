@@ -5,11 +5,16 @@ group is killed at the end whatever happened, so a failure here cannot hang the 
 import os
 import signal
 import subprocess
+import sys
 import time
 
+import numpy as np
 import pytest
 
 from conftest import ROOT, start_cli
+from ftstab_mj.logs.reader import read_log
+from ftstab_mj.logs.verify import CROSS_PATH_ULPS, first_tolerated_difference
+from ftstab_mj.simulation import native
 from ftstab_mj.studies.sweep.table import read_table
 
 DEADLINE = 60  # s: any command here ends well within this, or the test fails (and kills its group)
@@ -308,3 +313,55 @@ def test_montecarlo_states_lost_by_dead_workers_are_an_error(tmp_path):
                               "--out", d / "o")
     assert code == 1, err
     assert "error: 4 state(s) lost by dead worker processes (rows 0, 1, 2, 3)" in err, err
+
+
+# -- W2: a log records its kernel path; --verify compares across paths within the stated tolerance -------------
+
+# ``python -m ftstab_mj`` on the Python path: the C kernel made unavailable before the command starts
+PYTHON_PATH = ("import sys; import ftstab_mj.simulation.native as n; n.LIB = None; "
+               "n.UNAVAILABLE_REASON = 'kernel off for this test'; from ftstab_mj.cli import main; sys.exit(main(sys.argv[1:]))")
+
+
+def cli_on(kernel: str, *args, cwd):
+    """(returncode, stdout, stderr) of the CLI on ``kernel`` ("native" | "python"), in a group of its own."""
+    if kernel == "native":
+        return finish(start_cli(*args, cwd=cwd, start_new_session=True))
+    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    proc = subprocess.Popen([sys.executable, "-c", PYTHON_PATH, *map(str, args)], cwd=cwd, env=env, text=True,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True)
+    return finish(proc)
+
+
+@pytest.mark.skipif(not native.available(), reason=f"native kernel: {native.UNAVAILABLE_REASON}")
+@pytest.mark.parametrize("written,replayed", [("native", "python"), ("python", "native"), ("native", "native"),
+                                              ("python", "python")])
+def test_verify_compares_across_kernel_paths_within_the_stated_tolerance(tmp_path, written, replayed):
+    code, _, err = cli_on(written, "run", "cart_r2_adaptive", "--out", tmp_path, "--set", "sim.duration=1", cwd=tmp_path)
+    assert code == 0, err
+    log = tmp_path / "cart_r2_adaptive.mcap"
+    assert read_log(str(log)).info.kernel == written  # the log says which path wrote it
+    code, out, err = cli_on(replayed, "replay", log, "--verify", cwd=tmp_path)
+    assert code == 0, err
+    assert f"{written} kernel path" in out
+    if written == replayed:  # same path: bit for bit, as before
+        assert "logged values are bit-identical" in out
+    else:
+        assert f"within the cross-path tolerance (written on the {written} kernel path, re-run on the {replayed}" in out
+        worst = float(out.split("largest difference ")[1].split(" of it")[0])
+        assert 0 < worst <= 1  # the paths do differ (so bit for bit would fail), within the tolerance
+
+
+def test_the_cross_path_tolerance_is_a_few_ulp_per_sample():
+    x = np.array([[1.0, 3.0], [1e-3, -2.0], [5.0, 0.0]])
+    one_ulp = np.nextafter(x, np.inf)
+    assert first_tolerated_difference(x, one_ulp, np.arange(3))[0] is None
+    # at sample 0 the bound is CROSS_PATH_ULPS ulp of max(1, |value|): one more is a difference
+    beyond = x.copy()
+    beyond[0, 1] += (CROSS_PATH_ULPS + 1) * np.finfo(float).eps * 3.0
+    assert first_tolerated_difference(x, beyond, np.arange(3))[0] == 0
+    # ... and the same difference at sample 1000 is within it (the loop carries the earlier ones)
+    assert first_tolerated_difference(x, beyond, np.arange(1000, 1003))[0] is None
+    # a value only one side has (non-finite on the other) is a difference whatever the tolerance
+    gone = x.copy()
+    gone[2, 0] = np.nan
+    assert first_tolerated_difference(x, gone, np.arange(10 ** 6, 10 ** 6 + 3))[0] == 2
