@@ -11,8 +11,9 @@ import time
 import numpy as np
 import pytest
 
-from conftest import ROOT, start_cli
+from conftest import ROOT, rrd_rows, start_cli
 from ftstab_mj.logs.reader import read_log
+from ftstab_mj.logs.rerun_sink import TIMELINE_MAX_S, on_timeline
 from ftstab_mj.logs.verify import CROSS_PATH_ULPS, first_tolerated_difference
 from ftstab_mj.simulation import native
 from ftstab_mj.studies.sweep.table import read_table
@@ -64,9 +65,9 @@ def wait_for(predicate, timeout, what):
     raise AssertionError(f"timed out after {timeout} s waiting for {what}")
 
 
-def start(*args):
+def start(*args, cwd=None):
     """The CLI in a process group of its own (killed by :func:`finish`)."""
-    return start_cli(*args, start_new_session=True)
+    return start_cli(*args, cwd=cwd, start_new_session=True)
 
 
 def finish(proc, timeout=DEADLINE):
@@ -325,7 +326,7 @@ PYTHON_PATH = ("import sys; import ftstab_mj.simulation.native as n; n.LIB = Non
 def cli_on(kernel: str, *args, cwd):
     """(returncode, stdout, stderr) of the CLI on ``kernel`` ("native" | "python"), in a group of its own."""
     if kernel == "native":
-        return finish(start_cli(*args, cwd=cwd, start_new_session=True))
+        return finish(start(*args, cwd=cwd))
     env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
     proc = subprocess.Popen([sys.executable, "-c", PYTHON_PATH, *map(str, args)], cwd=cwd, env=env, text=True,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True)
@@ -365,3 +366,25 @@ def test_the_cross_path_tolerance_is_a_few_ulp_per_sample():
     gone = x.copy()
     gone[2, 0] = np.nan
     assert first_tolerated_difference(x, gone, np.arange(10 ** 6, 10 ** 6 + 3))[0] == 2
+
+
+# -- W5: every sink survives any gain the validator accepts ------------------------------------------------------
+
+def test_a_time_bound_of_centuries_is_no_rerun_timeline_point_and_no_traceback(tmp_path):
+    """k = -1e-12 is a valid homogeneity degree whose T(z0) is ~1e12 s, beyond Rerun's int64-ns timeline
+    (292 years): the run with --rrd and `view` write their recordings, T stays a number in the metrics."""
+    code, out, err = finish(start("run", "cart_r2_robust", "--out", tmp_path, "--rrd", "--set",
+                                  "loops.cart.controller.k=-1e-12", "--set", "sim.duration=0.3", cwd=tmp_path))
+    assert code == 0 and "Traceback" not in err, err
+    T = float(next(line for line in out.splitlines() if line.strip().startswith("time_bound")).split()[1])
+    assert T > TIMELINE_MAX_S  # the case does reach beyond the timeline
+    assert rrd_rows(tmp_path / "cart_r2_robust.rrd", "/loop/cart/V1/envelope") > 0  # the envelope up to the run's end
+    code, out, err = finish(start("view", tmp_path / "cart_r2_robust.mcap", "--open", "none", "--rrd",
+                                  tmp_path / "view.rrd", cwd=tmp_path))
+    assert code == 0 and "Traceback" not in err, err
+    assert (tmp_path / "view.rrd").stat().st_size > 0
+
+
+def test_the_timeline_keeps_the_times_it_can_hold():
+    t = np.array([0.0, 1.0, 9.2e9, 9.3e9, 1e12, np.inf, np.nan, -1e13])
+    assert on_timeline(t).tolist() == [True, True, True, False, False, False, False, False]
