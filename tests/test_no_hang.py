@@ -388,3 +388,45 @@ def test_a_time_bound_of_centuries_is_no_rerun_timeline_point_and_no_traceback(t
 def test_the_timeline_keeps_the_times_it_can_hold():
     t = np.array([0.0, 1.0, 9.2e9, 9.3e9, 1e12, np.inf, np.nan, -1e13])
     assert on_timeline(t).tolist() == [True, True, True, False, False, False, False, False]
+
+
+# -- the Python API: names are file names; a Foxglove address it cannot serve on is refused before the run ------
+
+def test_an_api_scenario_name_never_writes_outside_the_output_folder(tmp_path):
+    import dataclasses
+
+    import ftstab_mj
+    from ftstab_mj.config.errors import LogError, ScenarioError
+
+    out = tmp_path / "deep" / "runs"
+    with pytest.raises(ScenarioError, match=r"name: expected a non-empty name of ASCII letters"):
+        ftstab_mj.run("cart_r2_robust", out=out, overrides={"name": "../escape", "sim.duration": 0.01})
+    sc = dataclasses.replace(ftstab_mj.load_scenario("cart_r2_robust", {"sim.duration": 0.01}), name="../escape")
+    with pytest.raises(LogError, match=r"the scenario name: expected .* found '\.\./escape'"):
+        ftstab_mj.run(sc, out=out)  # a Scenario built by hand skips the loader: the log paths check it
+    assert [p.name for p in tmp_path.rglob("*") if p.is_file()] == []
+
+
+def test_an_api_foxglove_address_in_use_is_refused_before_the_run_and_leaves_no_log(tmp_path, monkeypatch):
+    import socket
+
+    import ftstab_mj
+    from ftstab_mj.config.errors import LogError
+    import ftstab_mj.logs.live as live
+
+    with socket.socket() as held:
+        held.bind(("127.0.0.1", 0))
+        held.listen()
+        port = held.getsockname()[1]
+        with pytest.raises(LogError, match=rf"foxglove 127\.0\.0\.1:{port}: expected an address to serve on"):
+            ftstab_mj.run("cart_r2_robust", out=tmp_path / "a", overrides={"sim.duration": 0.01},
+                          foxglove=("127.0.0.1", port))
+        assert not list((tmp_path / "a").glob("*"))  # no log at all
+        # the port taken between the check and the first batch: the run fails in one line and its log is
+        # complete (its summary, the status "failed" and why), never an MCAP cut short
+        monkeypatch.setattr(live, "_check_bindable", lambda host, port: None)
+        with pytest.raises(LogError, match=r"taken after the run was set up"):
+            ftstab_mj.run("cart_r2_robust", out=tmp_path / "b", overrides={"sim.duration": 0.01},
+                          foxglove=("127.0.0.1", port))
+    log = read_log(str(tmp_path / "b" / "cart_r2_robust.mcap"))
+    assert log.complete and log.recorded["status"] == "failed" and "foxglove" in log.recorded["message"]
