@@ -1,7 +1,8 @@
 """Every option of every verb under hostile values (issue 44, point 5), found from the argparse parsers
 (cli/<verb>.py add_parser), so an option added later is covered without editing this file:
 
-- an option that converts its value (``type=``: numbers, ports, lists of numbers) gets -1, 0, 1e308, nan, inf;
+- an option that converts its value (``type=``: numbers, ports, lists of numbers) gets -1, 0, 1e308, nan, inf
+  and -1e-3 (a value, never an option: "expected one argument" fails the case);
 - an option that names a file or folder (no ``type=``, no ``choices``) gets a FIFO, a directory, a symbolic
   link loop, /dev/zero, a path in a read-only folder and an existing file that is not what it expects; a
   log read from a FIFO is fed a valid log by a writer (it must stream), any other FIFO gets no writer.
@@ -27,7 +28,7 @@ import pytest
 
 from conftest import ROOT
 
-NUMBERS = ("-1", "0", "1e308", "nan", "inf")
+NUMBERS = ("-1", "0", "1e308", "nan", "inf", "-1e-3")  # -1e-3: argparse took it for an option (certify --k)
 PATHS = ("fifo", "directory", "symlink_loop", "/dev/zero", "read_only_folder", "existing_file")
 NOT_PATHS = {"--set": "KEY=VALUE texts (tests/fuzzing.py)", "--loop": "a loop's name",
              "--scheduler": "a Dask scheduler's address"}
@@ -239,6 +240,8 @@ def problems(outcome: dict) -> str | None:
     lines = [line for line in err.splitlines() if line.strip()]
     if code == 2 and (len(lines) != 1 or not lines[0].startswith("error: ")):
         return f"exit 2 with {len(lines)} stderr lines, not one 'error: ' line"
+    if "expected one argument" in err:
+        return "a negative number taken for an option"
     return None
 
 

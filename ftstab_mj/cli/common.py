@@ -19,7 +19,15 @@ GAIN_MIN, GAIN_MAX = 1e-3, 1e6  # certify/design: gains the interval bounds stay
 
 
 class Parser(argparse.ArgumentParser):
-    """argparse that reports errors as one line and exit code 2 (argparse's own code for usage)."""
+    """argparse that reports errors as one line and exit code 2 (argparse's own code for usage), and takes
+    any negative number as a value (``--k -1e-3``, ``--seed -inf``), not only argparse's -1 and -.5 forms."""
+
+    def __init__(self, *args, **kwargs):
+        import re
+
+        super().__init__(*args, **kwargs)
+        # argparse reads an argument that starts with '-' and is not a number by this pattern as an option
+        self._negative_number_matcher = re.compile(r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$|^-(inf|infinity|nan)$", re.I)
 
     def error(self, message):  # noqa: D401 - argparse API
         raise UsageError(f"{self.prog}: {message}")
