@@ -282,7 +282,7 @@ def test_every_option_is_fuzzed(outcomes):
     assert found == expected
     assert len(outcomes) == sum(len(NUMBERS if k == "number" else PATHS) for *_, k in options())
     assert {o["kind"] for o in outcomes} == {"number", "path"}
-    assert len(found) > 30  # 36 options when this was written
+    assert len(found) > 40  # 44 options when this was written
     assert {o["verb"] for o in outcomes} == set(base_commands(Path("/nonexistent"), Path("x")))  # every verb
 
 
