@@ -120,10 +120,11 @@ def run(scenario_or_path, out=None, overrides=None, live=False, foxglove=None, r
     keeps none (Result.samples, body_pos, body_quat None): memory does not grow with the run, the
     metrics are the same.
     Raises ScenarioError on bad input, LogError (one line, before anything runs) when ``out`` is a
-    file or cannot be made, or a log path there is a directory, a read-only file, or holds what is
+    file or cannot be made, when the Foxglove address cannot be served on (in use), or a log path there is a directory, a read-only file, or holds what is
     not an ftstab log (another program's file, a symbolic link: ``ftstab run --force`` replaces
     them; the API never does), and CallbackError when the controller raised.
     """
+    from ftstab_mj.config.errors import LogError
     from ftstab_mj.logs import RerunSink
     from ftstab_mj.logs.live import LiveView
     from ftstab_mj.logs.run_logs import open_run_logs
@@ -139,7 +140,11 @@ def run(scenario_or_path, out=None, overrides=None, live=False, foxglove=None, r
     if foxglove is not None and out is None:
         raise ValueError("foxglove: expected out= as well (the Foxglove server publishes what the MCAP log gets)")
     run_logs = None if out is None else open_run_logs(out, sc.name)  # checked before any viewer starts
-    view = LiveView(live, foxglove, realtime)
+    try:
+        view = LiveView(live, foxglove, realtime)
+    except OSError as exc:  # the Foxglove port in use, or not an address of this host: before any log exists
+        raise LogError(f"foxglove {foxglove[0]}:{foxglove[1]}: expected an address to serve on, found "
+                       f"{exc.strerror or exc}") from None
     sinks, logs = list(view.sinks()), {}
     try:
         if run_logs is not None:

@@ -5,11 +5,17 @@ group is killed at the end whatever happened, so a failure here cannot hang the 
 import os
 import signal
 import subprocess
+import sys
 import time
 
+import numpy as np
 import pytest
 
-from conftest import ROOT, start_cli
+from conftest import ROOT, rrd_rows, start_cli
+from ftstab_mj.logs.reader import read_log
+from ftstab_mj.logs.rerun_sink import TIMELINE_MAX_S, on_timeline
+from ftstab_mj.logs.verify import CROSS_PATH_ULPS, first_tolerated_difference
+from ftstab_mj.simulation import native
 from ftstab_mj.studies.sweep.table import read_table
 
 DEADLINE = 60  # s: any command here ends well within this, or the test fails (and kills its group)
@@ -59,9 +65,9 @@ def wait_for(predicate, timeout, what):
     raise AssertionError(f"timed out after {timeout} s waiting for {what}")
 
 
-def start(*args):
+def start(*args, cwd=None):
     """The CLI in a process group of its own (killed by :func:`finish`)."""
-    return start_cli(*args, start_new_session=True)
+    return start_cli(*args, cwd=cwd, start_new_session=True)
 
 
 def finish(proc, timeout=DEADLINE):
@@ -308,3 +314,119 @@ def test_montecarlo_states_lost_by_dead_workers_are_an_error(tmp_path):
                               "--out", d / "o")
     assert code == 1, err
     assert "error: 4 state(s) lost by dead worker processes (rows 0, 1, 2, 3)" in err, err
+
+
+# -- W2: a log records its kernel path; --verify compares across paths within the stated tolerance -------------
+
+# ``python -m ftstab_mj`` on the Python path: the C kernel made unavailable before the command starts
+PYTHON_PATH = ("import sys; import ftstab_mj.simulation.native as n; n.LIB = None; "
+               "n.UNAVAILABLE_REASON = 'kernel off for this test'; from ftstab_mj.cli import main; sys.exit(main(sys.argv[1:]))")
+
+
+def cli_on(kernel: str, *args, cwd):
+    """(returncode, stdout, stderr) of the CLI on ``kernel`` ("native" | "python"), in a group of its own."""
+    if kernel == "native":
+        return finish(start(*args, cwd=cwd))
+    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    proc = subprocess.Popen([sys.executable, "-c", PYTHON_PATH, *map(str, args)], cwd=cwd, env=env, text=True,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True)
+    return finish(proc)
+
+
+@pytest.mark.skipif(not native.available(), reason=f"native kernel: {native.UNAVAILABLE_REASON}")
+@pytest.mark.parametrize("written,replayed", [("native", "python"), ("python", "native"), ("native", "native"),
+                                              ("python", "python")])
+def test_verify_compares_across_kernel_paths_within_the_stated_tolerance(tmp_path, written, replayed):
+    code, _, err = cli_on(written, "run", "cart_r2_adaptive", "--out", tmp_path, "--set", "sim.duration=1", cwd=tmp_path)
+    assert code == 0, err
+    log = tmp_path / "cart_r2_adaptive.mcap"
+    assert read_log(str(log)).info.kernel == written  # the log says which path wrote it
+    code, out, err = cli_on(replayed, "replay", log, "--verify", cwd=tmp_path)
+    assert code == 0, err
+    assert f"{written} kernel path" in out
+    if written == replayed:  # same path: bit for bit, as before
+        assert "logged values are bit-identical" in out
+    else:
+        assert f"within the cross-path tolerance (written on the {written} kernel path, re-run on the {replayed}" in out
+        worst = float(out.split("largest difference ")[1].split(" of it")[0])
+        assert 0 < worst <= 1  # the paths do differ (so bit for bit would fail), within the tolerance
+
+
+def test_the_cross_path_tolerance_is_a_few_ulp_per_sample():
+    x = np.array([[1.0, 3.0], [1e-3, -2.0], [5.0, 0.0]])
+    one_ulp = np.nextafter(x, np.inf)
+    assert first_tolerated_difference(x, one_ulp, np.arange(3))[0] is None
+    # at sample 0 the bound is CROSS_PATH_ULPS ulp of max(1, |value|): one more is a difference
+    beyond = x.copy()
+    beyond[0, 1] += (CROSS_PATH_ULPS + 1) * np.finfo(float).eps * 3.0
+    assert first_tolerated_difference(x, beyond, np.arange(3))[0] == 0
+    # ... and the same difference at sample 1000 is within it (the loop carries the earlier ones)
+    assert first_tolerated_difference(x, beyond, np.arange(1000, 1003))[0] is None
+    # a value only one side has (non-finite on the other) is a difference whatever the tolerance
+    gone = x.copy()
+    gone[2, 0] = np.nan
+    assert first_tolerated_difference(x, gone, np.arange(10 ** 6, 10 ** 6 + 3))[0] == 2
+
+
+# -- W5: every sink survives any gain the validator accepts ------------------------------------------------------
+
+def test_a_time_bound_of_centuries_is_no_rerun_timeline_point_and_no_traceback(tmp_path):
+    """k = -1e-12 is a valid homogeneity degree whose T(z0) is ~1e12 s, beyond Rerun's int64-ns timeline
+    (292 years): the run with --rrd and `view` write their recordings, T stays a number in the metrics."""
+    code, out, err = finish(start("run", "cart_r2_robust", "--out", tmp_path, "--rrd", "--set",
+                                  "loops.cart.controller.k=-1e-12", "--set", "sim.duration=0.3", cwd=tmp_path))
+    assert code == 0 and "Traceback" not in err, err
+    T = float(next(line for line in out.splitlines() if line.strip().startswith("time_bound")).split()[1])
+    assert T > TIMELINE_MAX_S  # the case does reach beyond the timeline
+    assert rrd_rows(tmp_path / "cart_r2_robust.rrd", "/loop/cart/V1/envelope") > 0  # the envelope up to the run's end
+    code, out, err = finish(start("view", tmp_path / "cart_r2_robust.mcap", "--open", "none", "--rrd",
+                                  tmp_path / "view.rrd", cwd=tmp_path))
+    assert code == 0 and "Traceback" not in err, err
+    assert (tmp_path / "view.rrd").stat().st_size > 0
+
+
+def test_the_timeline_keeps_the_times_it_can_hold():
+    t = np.array([0.0, 1.0, 9.2e9, 9.3e9, 1e12, np.inf, np.nan, -1e13])
+    assert on_timeline(t).tolist() == [True, True, True, False, False, False, False, False]
+
+
+# -- the Python API: names are file names; a Foxglove address it cannot serve on is refused before the run ------
+
+def test_an_api_scenario_name_never_writes_outside_the_output_folder(tmp_path):
+    import dataclasses
+
+    import ftstab_mj
+    from ftstab_mj.config.errors import LogError, ScenarioError
+
+    out = tmp_path / "deep" / "runs"
+    with pytest.raises(ScenarioError, match=r"name: expected a non-empty name of ASCII letters"):
+        ftstab_mj.run("cart_r2_robust", out=out, overrides={"name": "../escape", "sim.duration": 0.01})
+    sc = dataclasses.replace(ftstab_mj.load_scenario("cart_r2_robust", {"sim.duration": 0.01}), name="../escape")
+    with pytest.raises(LogError, match=r"the scenario name: expected .* found '\.\./escape'"):
+        ftstab_mj.run(sc, out=out)  # a Scenario built by hand skips the loader: the log paths check it
+    assert [p.name for p in tmp_path.rglob("*") if p.is_file()] == []
+
+
+def test_an_api_foxglove_address_in_use_is_refused_before_the_run_and_leaves_no_log(tmp_path, monkeypatch):
+    import socket
+
+    import ftstab_mj
+    from ftstab_mj.config.errors import LogError
+    import ftstab_mj.logs.live as live
+
+    with socket.socket() as held:
+        held.bind(("127.0.0.1", 0))
+        held.listen()
+        port = held.getsockname()[1]
+        with pytest.raises(LogError, match=rf"foxglove 127\.0\.0\.1:{port}: expected an address to serve on"):
+            ftstab_mj.run("cart_r2_robust", out=tmp_path / "a", overrides={"sim.duration": 0.01},
+                          foxglove=("127.0.0.1", port))
+        assert not list((tmp_path / "a").glob("*"))  # no log at all
+        # the port taken between the check and the first batch: the run fails in one line and its log is
+        # complete (its summary, the status "failed" and why), never an MCAP cut short
+        monkeypatch.setattr(live, "_check_bindable", lambda host, port: None)
+        with pytest.raises(LogError, match=r"taken after the run was set up"):
+            ftstab_mj.run("cart_r2_robust", out=tmp_path / "b", overrides={"sim.duration": 0.01},
+                          foxglove=("127.0.0.1", port))
+    log = read_log(str(tmp_path / "b" / "cart_r2_robust.mcap"))
+    assert log.complete and log.recorded["status"] == "failed" and "foxglove" in log.recorded["message"]

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import os
 
-from ftstab_mj.cli.common import UsageError, streamed_metrics
+from ftstab_mj.cli.common import UsageError, output_file, streamed_metrics
 
 VERB = "check"
 ORDER = 40  # its place in `ftstab --help`
@@ -36,6 +36,7 @@ def handle(args) -> int:
     )
 
     if args.pin:
+        output_file(args.pin, f"--pin {args.pin}")  # before the log is read
         log, metrics = streamed_metrics(args.log)
         source = (f"Pinned from {os.path.basename(args.log)}: scenario {log.info.scenario.get('name', '?')}, "
                   f"{metrics['duration']:g} s, control period {log.info.period:g} s.")

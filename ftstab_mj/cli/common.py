@@ -12,14 +12,22 @@ import sys
 from ftstab_mj.config.errors import UsageError
 
 __all__ = ["GAIN_MAX", "GAIN_MIN", "Parser", "UsageError", "certificate_text", "end_progress", "floats", "gains",
-           "header", "host_port", "json_safe", "number_in", "numbers", "port", "progress_line", "read_log",
-           "region", "streamed_metrics", "workers"]
+           "header", "host_port", "json_safe", "number_in", "numbers", "output_dir", "output_file", "port",
+           "progress_line", "read_log", "region", "streamed_metrics", "workers"]
 
 GAIN_MIN, GAIN_MAX = 1e-3, 1e6  # certify/design: gains the interval bounds stay meaningful for
 
 
 class Parser(argparse.ArgumentParser):
-    """argparse that reports errors as one line and exit code 2 (argparse's own code for usage)."""
+    """argparse that reports errors as one line and exit code 2 (argparse's own code for usage), and takes
+    any negative number as a value (``--k -1e-3``, ``--seed -inf``), not only argparse's -1 and -.5 forms."""
+
+    def __init__(self, *args, **kwargs):
+        import re
+
+        super().__init__(*args, **kwargs)
+        # argparse reads an argument that starts with '-' and is not a number by this pattern as an option
+        self._negative_number_matcher = re.compile(r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$|^-(inf|infinity|nan)$", re.I)
 
     def error(self, message):  # noqa: D401 - argparse API
         raise UsageError(f"{self.prog}: {message}")
@@ -50,6 +58,32 @@ def number_in(lo, hi, kind=float, what=""):
                                              f"[{fmt(lo)}, {fmt(hi)}]{what}, got {text!r}")
         return x
     return parse
+
+
+def output_dir(path, what: str, make: bool = True):
+    """``path`` (a Path) made a directory to write in (``make``; else only checked), before any work: a file,
+    a FIFO, a device, a symbolic link loop or a folder that cannot be made is one UsageError line naming
+    ``what`` (e.g. "--out DIR")."""
+    from pathlib import Path
+
+    out = Path(path)
+    if (out.exists() or out.is_symlink()) and not out.is_dir():
+        raise UsageError(f"{what}: expected a directory for the output, found "
+                         + ("a symbolic link that leads nowhere" if not out.exists() else "a file"))
+    try:
+        if make:
+            out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise UsageError(f"{what}: expected a directory the output can be written in, found {exc.strerror}") from None
+    return out
+
+
+def output_file(path, what: str) -> None:
+    """Refuse (one UsageError line naming ``what``) an output file that exists and is not a regular file:
+    a FIFO would block the write until a reader comes, a device would take the bytes."""
+    if os.path.lexists(path) and not os.path.isfile(path):
+        raise UsageError(f"{what}: expected a regular file to write (or none), found "
+                         + ("a directory" if os.path.isdir(path) else "no regular file"))
 
 
 def json_safe(x):

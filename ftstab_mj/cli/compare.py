@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import sys
 
-from ftstab_mj.cli.common import header, workers
+from ftstab_mj.cli.common import header, output_dir, workers
 
 VERB = "compare"
 ORDER = 100  # its place in `ftstab --help`
@@ -44,8 +44,7 @@ def handle(args) -> int:
     cmp = compare.load_comparison(compare.find_comparison(args.comparison))
     task, items = compare.prepare(cmp, args.set)  # every row validated before any run
     engine = compare.engine_for(args.workers, args.engine)
-    out = Path(args.out or Path("runs") / cmp.name)
-    out.mkdir(parents=True, exist_ok=True)
+    out = output_dir(args.out or Path("runs") / cmp.name, f"--out {args.out}" if args.out else "the output")
     print(header(cmp.name, cmp.description, args.set))
     print(f"  base {cmp.scenario}, {len(cmp.laws)} laws x {max(1, len(cmp.grid))} -> {len(items)} runs -> {out}")
     results = dict(execute(items, task, engine, args.workers))

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import sys
 
-from ftstab_mj.cli.common import floats, workers
+from ftstab_mj.cli.common import floats, number_in, output_dir, workers
 
 VERB = "montecarlo"
 ORDER = 90  # its place in `ftstab --help`
@@ -23,7 +23,8 @@ def add_parser(sub) -> None:
     mc.add_argument("--states", type=int, required=True, metavar="N", help="number of initial states")
     mc.add_argument("--box", type=floats, metavar="A1,...,AR",
                     help="half-widths of the box of z0 (chain units; default: max |z0_i| of the scenario on every axis)")
-    mc.add_argument("--seed", type=int, default=0, help="seed of the draw of initial states (default 0)")
+    mc.add_argument("--seed", type=number_in(0, 2 ** 63 - 1, int), default=0,
+                    help="seed of the draw of initial states (default 0)")
     mc.add_argument("--loop", help="the loop whose z0 is drawn (default: the first)")
     mc.add_argument("--on", choices=("chain", "plant"), default="chain",
                     help="chain: the loop on the exact ideal chain (ideal-chain scenarios, carts without friction or damping); "
@@ -51,7 +52,7 @@ def handle(args) -> int:
     sc = load_scenario(path, args.set)
     loop, box = mc.plan(sc, args.loop, args.states, args.box, args.on, args.workers, args.engine, args.scheduler)
     Z0 = mc.Distribution(args.states, tuple(box), args.seed).draw()
-    out = Path(args.out or Path("runs") / f"{sc.name}-montecarlo")
+    out = output_dir(args.out or Path("runs") / f"{sc.name}-montecarlo", f"--out {args.out}" if args.out else "the output")
     tty = sys.stderr.isatty()
 
     def progress(done, total):
@@ -68,7 +69,6 @@ def handle(args) -> int:
         sys.stderr.write("\n")
     summary = mc.summarize(rows, applies)
     applies = summary["bound_applies"]  # not where V1(z0) overflows
-    out.mkdir(parents=True, exist_ok=True)
     write_table(rows, out / "montecarlo.parquet")
     (out / "montecarlo.json").write_text(mc.json_text(summary) + "\n")
     mc.figure(rows, summary, f"{sc.name}: settle time / T(z0)", out / "montecarlo.png")

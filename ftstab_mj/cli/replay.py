@@ -24,7 +24,9 @@ def add_parser(sub) -> None:
     rp.add_argument("--force", action="store_true",
                     help="let --rrd replace a file that is not an ftstab log (or a symbolic link)")
     rp.add_argument("--verify", action="store_true",
-                    help="re-run the scenario recorded in the log and check that the samples are bit-identical")
+                    help="re-run the scenario recorded in the log and check that the samples are bit-identical "
+                         "(within a few ulp per sample when the log was written on the other kernel path, "
+                         "native or Python)")
     rp.set_defaults(func=handle)
 
 
@@ -50,7 +52,8 @@ def handle(args) -> int:
     else:
         v = log.versions
         print(f"{args.log}: {log.n_samples} samples, {'complete' if log.complete else 'truncated'} log"
-              f" (ftstab_mj {v.get('ftstab_mj', '?')}, MuJoCo {v.get('mujoco', '?')})")
+              f" (ftstab_mj {v.get('ftstab_mj', '?')}, MuJoCo {v.get('mujoco', '?')}, "
+              f"{log.info.kernel or 'unrecorded'} kernel path)")
         print(format_table(metrics))
         if log.recorded is None:
             print("recorded metrics: none (the run did not finish); status taken as interrupted")
@@ -83,7 +86,10 @@ def handle(args) -> int:
                   "it could be compared with the log", file=sys.stderr)
             return stop.exit_code
         if v.ok:
-            print(f"verify: re-ran the recorded scenario: all {v.compared} logged values are bit-identical",
+            same = ("are bit-identical" if v.paths is None else
+                    f"agree within the cross-path tolerance (written on the {v.paths[0]} kernel path, re-run on the "
+                    f"{v.paths[1]} one; largest difference {v.worst:.2g} of it)")
+            print(f"verify: re-ran the recorded scenario: all {v.compared} logged values {same}",
                   file=sys.stderr if args.json else sys.stdout)
         else:
             print(f"{args.log}: verify failed: the re-run of the recorded scenario differs from the log:", file=sys.stderr)

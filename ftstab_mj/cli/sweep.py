@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import sys
 
-from ftstab_mj.cli.common import header, workers
+from ftstab_mj.cli.common import header, output_dir, workers
 
 VERB = "sweep"
 ORDER = 80  # its place in `ftstab --help`
@@ -60,7 +60,8 @@ def handle(args) -> int:
 
     sweep = load_sweep(find_sweep(args.sweep))
     rows = expand(sweep)
-    out = Path(args.out or Path("runs") / sweep.name)
+    out = output_dir(args.out or Path("runs") / sweep.name, f"--out {args.out}" if args.out else "the output",
+                     make=False)  # made by the sweep once every row is checked
     # a Dask cluster starts while the rows are checked; not for --resume, which may have nothing left to run
     with started_ahead("serial" if args.resume else engine, args.workers, args.scheduler) as ahead:
         # every input check, every row validated, before any run or file

@@ -117,12 +117,14 @@ class FoxgloveServer:
         self._resend: set[str] = set()  # latched topics a client subscribed to since they were last sent
         self.host, self._port, self.name, self._say = host, port, name, say
         self._server = self._relay = None
+        self._refused = False  # start() could not listen (then it never tries again)
         if port:
             _check_bindable(host, port)
 
     def start(self) -> None:
-        """Listen (once): the channels made so far are advertised whole to every client."""
-        if self._server is not None:
+        """Listen (once): the channels made so far are advertised whole to every client. A refusal is
+        raised once: the log it mirrors still closes whole (its status says why the run stopped)."""
+        if self._server is not None or self._refused:
             return
         fg, outer = self._foxglove, self
 
@@ -133,9 +135,18 @@ class FoxgloveServer:
 
         # foxglove-sdk 0.30 answers HTTP 400 to the former name: it listens on a private loopback port
         # and the relay on the user's, renaming the subprotocol in the handshake
-        self._server = fg.start_server(name=self.name, host="127.0.0.1", port=0, context=self._context,
-                                       server_listener=_Listener(), message_backlog_size=BACKLOG)
-        self._relay = _SubprotocolRelay(self.host, self._port, ("127.0.0.1", self._server.port))
+        server = fg.start_server(name=self.name, host="127.0.0.1", port=0, context=self._context,
+                                 server_listener=_Listener(), message_backlog_size=BACKLOG)
+        try:  # the port was free at construction; another program may have taken it since
+            self._relay = _SubprotocolRelay(self.host, self._port, ("127.0.0.1", server.port))
+        except OSError as exc:
+            from ftstab_mj.config.errors import LogError
+
+            server.stop()
+            self._refused = True
+            raise LogError(f"foxglove {self.host}:{self._port}: expected an address to serve on, found "
+                           f"{exc.strerror or exc} (taken after the run was set up)") from None
+        self._server = server
         if self._say is not None:
             self._say(f"foxglove: serving {self.url} while the run lasts (Foxglove: Open connection > Foxglove "
                       f"WebSocket, or {self.app_url})")
@@ -220,8 +231,12 @@ class _SubprotocolRelay:
         self._upstream = upstream
         self._listener = socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET)
         self._listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-        self._listener.bind((host, port))
-        self._listener.listen(16)
+        try:
+            self._listener.bind((host, port))
+            self._listener.listen(16)
+        except OSError:
+            self._listener.close()
+            raise
         self.port = self._listener.getsockname()[1]
         self._open: set = set()  # the sockets of live connections, closed at stop
         self._lock = threading.Lock()

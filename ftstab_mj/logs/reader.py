@@ -755,6 +755,8 @@ def _run_info(path: str, scenario, run) -> RunInfo:
         raise LogError(f"{what}: period: expected a finite number > 0, found {info.period!r}")
     if not isinstance(info.model_xml, str | None):
         raise LogError(f"{what}: model_xml: expected a string or null")
+    if info.kernel not in ("", "native", "python"):  # "": a log written before the path was recorded
+        raise LogError(f"{what}: kernel: expected \"native\" or \"python\", found {info.kernel[:40]!r}")
     return info
 
 

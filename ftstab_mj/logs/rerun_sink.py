@@ -161,6 +161,18 @@ def _labels(field: str, a) -> list[str]:
     return [field] if np.ndim(a) == 1 else [f"{field}{i + 1}" for i in range(w)]
 
 
+# a Rerun timeline holds int64 nanoseconds: 2^63 ns is 292 years (rerun-sdk raises OverflowError beyond)
+TIMELINE_MAX_S = (2 ** 63 - 1) / 1e9 * (1 - 1e-9)
+
+
+def on_timeline(t) -> np.ndarray:
+    """Mask (m,) of the times t (m,) (s) a Rerun timeline can hold. Every time bound the sink draws goes
+    through it: a valid scenario can have a T(z0) of centuries (k = -1e-12 gives 1e14 s), which is then
+    no point on the timeline but stays a number in its note; a run's own samples are within 1e7 periods."""
+    t = np.asarray(t, dtype=float)
+    return np.isfinite(t) & (np.abs(t) <= TIMELINE_MAX_S)
+
+
 def _log10(v: np.ndarray) -> np.ndarray:
     out = np.full(v.shape, np.nan)
     pos = v > 0
@@ -332,19 +344,22 @@ class RerunSink:
             self._info.scenario.get("sim"), dict) else 0.0
         level = self._info.metric_settings.settle_level
         ends = np.array([0.0, max(duration, self._info.period)])
+        ends = ends[on_timeline(ends)]
         rec.send_columns(f"{base}/V1/settle_level", indexes=[rr.TimeColumn(TIMELINE, duration=ends)],
-                         columns=rr.Scalars.columns(scalars=np.log10(np.full(2, level))))
+                         columns=rr.Scalars.columns(scalars=np.log10(np.full(len(ends), level))))
         law = declared(lp.law)
         if law is None or not law.time_bound:
             return
         cert = loop_certificate(lp)
         t, bound, T = envelope(cert, V1_0, duration if duration > 0 else math.inf, T=time_bound(lp, z0))
-        if len(t):
-            rec.send_columns(f"{base}/V1/envelope", indexes=[rr.TimeColumn(TIMELINE, duration=t)],
-                             columns=rr.Scalars.columns(scalars=_log10(bound)))
+        keep = on_timeline(t)
+        if keep.any():
+            rec.send_columns(f"{base}/V1/envelope", indexes=[rr.TimeColumn(TIMELINE, duration=t[keep])],
+                             columns=rr.Scalars.columns(scalars=_log10(bound[keep])))
         if math.isfinite(T):
-            rec.send_columns(f"{base}/V1/T_z0", indexes=[rr.TimeColumn(TIMELINE, duration=[T])],
-                             columns=rr.Scalars.columns(scalars=[math.log10(level)]))
+            if on_timeline([T])[0]:  # beyond the timeline, T stays a number in the note
+                rec.send_columns(f"{base}/V1/T_z0", indexes=[rr.TimeColumn(TIMELINE, duration=[T])],
+                                 columns=rr.Scalars.columns(scalars=[math.log10(level)]))
             self._time_bounds[lp.name] = T
             rec.log(f"{base}/V1/T_z0/note", rr.TextDocument(f"T(z0) = {T:.4g} s ({self._kinds[lp.name]})"), static=True)
 

@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from ftstab_mj.config.errors import LogError
+from ftstab_mj.config.validate import identifier
 from ftstab_mj.logs.files import check_replaceable
 
 
@@ -60,12 +61,16 @@ def open_run_logs(out_dir, name: str, *, force: bool = False, what: str | None =
     """The logs ``out_dir/<name>.mcap`` and (``rrd``) ``.rrd`` of one run, checked; ``out_dir`` is made if absent.
 
     Raises LogError (one line, prefixed by ``what``, by default the directory's path; ``ftstab run``
-    passes "--out DIR") when ``out_dir`` is a file or cannot be made, when a log path is a directory
+    passes "--out DIR") when ``name`` is not a file name (``../escape``: a Scenario built by hand skips the
+    loader's check, and a log must never be written outside ``out_dir``), when ``out_dir`` is a file or cannot be made, when a log path is a directory
     or a read-only file, and (files.check_replaceable) when it holds what must not be replaced unless
     ``force``. Both paths are checked before either is written: bad input leaves no log behind.
     """
     out = Path(out_dir)
     what = str(out_dir) if what is None else what
+    bad = identifier(name) if isinstance(name, str) else "a string"
+    if bad:
+        raise LogError(f"{what}: the scenario name: expected {bad}, found {str(name)[:80]!r}")
     if out.exists() and not out.is_dir():
         raise LogError(f"{what}: expected a directory for the logs, found a file")
     try:

@@ -8,7 +8,15 @@ samples), so any difference means the log was altered or the code changed behavi
 every logged field of every loop over the logged samples (a truncated or interrupted log is a
 prefix: the scenario is re-run for as many samples as it holds), the body poses of /tf, and the status of a complete log. Floats are compared by their
 bits (so -0.0 != 0.0); non-finite values count as equal when both are non-finite (the log stores
-them as null). The log is read as it streams and each batch of the re-run compared as it comes
+them as null).
+
+A log records the path that computed it (``/run_info`` kernel: "native", the C kernel, or "python").
+Both paths do the same operations in the same order but for pow (libm's against NumPy's SIMD one, each
+within 1 ulp) and one more rounding of V1, so one sample differs by a few ulp; the closed loop carries
+the earlier samples' differences forward, at most unchanged when it does not amplify them. A log
+re-run on the other path is therefore compared with the tolerance :func:`cross_path_tolerance`:
+sample k may differ by ``CROSS_PATH_ULPS * (k + 1)`` units of 2^-52 relative to max(1, |value|). A log
+re-run on its own path, or one that does not record its path, is compared bit for bit. The log is read as it streams and each batch of the re-run compared as it comes
 (:class:`StreamingComparison`), so a long log is verified in memory that does not grow with it.
 """
 
@@ -23,14 +31,45 @@ from ftstab_mj.config.errors import LogError
 from ftstab_mj.simulation.records import COMPLETED, DIVERGED, LOOP_FIELDS, STAGE_FIELDS
 
 
+CROSS_PATH_ULPS = 4  # what one sample may add, in units of 2^-52: two pow calls (<= 1 ulp each), V1's rounding, margin
+KERNELS = ("native", "python")
+
+
 @dataclass(frozen=True)
 class Verification:
-    """ok: every compared value identical; compared: number of float values compared;
-    problems: readable lines, the first differing sample of each field that differs."""
+    """ok: every compared value identical (or within the cross-path tolerance); compared: number of
+    float values compared; problems: readable lines, the first differing sample of each field that
+    differs; paths: (the log's kernel, the re-run's) when they differ and the tolerance applied, else
+    None; worst: the largest difference found across paths, as a fraction of its tolerance (0 same path)."""
 
     ok: bool
     compared: int
     problems: tuple
+    paths: tuple | None = None
+    worst: float = 0.0
+
+
+def cross_path_tolerance(k, values: np.ndarray) -> np.ndarray:
+    """The largest difference accepted between a log and its re-run on the other kernel path, for
+    ``values`` (m, ...) the logged samples of indices k (m,): CROSS_PATH_ULPS * (k + 1) * 2^-52 * max(1, |value|)."""
+    v = np.asarray(values, dtype=float).reshape(len(values), -1)
+    k = np.asarray(k, dtype=float).reshape(-1, 1)
+    return CROSS_PATH_ULPS * (k + 1.0) * np.finfo(float).eps * np.maximum(1.0, np.abs(v))
+
+
+def first_tolerated_difference(logged: np.ndarray, rerun: np.ndarray, k) -> tuple[int | None, float]:
+    """(index of the first sample beyond :func:`cross_path_tolerance`, None if none; the largest
+    difference as a fraction of its tolerance). Same shapes, k (m,) the samples' indices; non-finite values
+    as in first_bit_difference."""
+    if len(logged) == 0:
+        return None, 0.0
+    a = np.asarray(logged, dtype=float).reshape(len(logged), -1)
+    b = np.asarray(rerun, dtype=float).reshape(len(rerun), -1)
+    fa, fb = np.isfinite(a), np.isfinite(b)
+    both = fa & fb
+    ratio = np.where(both, np.abs(np.where(both, a - b, 0.0)) / cross_path_tolerance(k, np.where(both, a, 0.0)), 0.0)
+    bad = np.flatnonzero((fa != fb).any(axis=1) | (ratio > 1.0).any(axis=1))
+    return (int(bad[0]) if bad.size else None), float(ratio.max(initial=0.0))
 
 
 def first_bit_difference(logged: np.ndarray, rerun: np.ndarray) -> int | None:
@@ -84,9 +123,22 @@ class StreamingComparison:
         self.only = {}  # (loop, field) -> which side has it
         self.tf = {}  # "position" | "orientation" -> problem line
         self.late = None
+        self.paths = None  # (log's kernel, re-run's) when they differ: compared with the cross-path tolerance
+        self.worst = 0.0
 
     def open(self, info) -> None:
-        pass
+        logged, rerun = self.log.info.kernel, info.kernel
+        if logged in KERNELS and rerun in KERNELS and logged != rerun:
+            self.paths = (logged, rerun)
+
+    def _first_difference(self, logged, rerun, k) -> int | None:
+        """The first differing sample of ``logged`` (samples of indices k (m,)) and ``rerun``: bit for bit on the same
+        path, beyond cross_path_tolerance across paths."""
+        if self.paths is None:
+            return first_bit_difference(logged, rerun)
+        first, worst = first_tolerated_difference(logged, rerun, k)
+        self.worst = max(self.worst, worst)
+        return first
 
     def close(self, status, metrics, message: str = "") -> None:
         pass
@@ -143,7 +195,7 @@ class StreamingComparison:
                 self.compared += a.size
                 if (name, f) in self.first:
                     continue
-                k = first_bit_difference(a, b)
+                k = self._first_difference(a, b, np.arange(off, off + m))
                 if k is not None:
                     self.first[name, f] = (f"/loop/{name} {f} differs first at sample {off + k} (t = {logged['t'][k]:.6g} "
                                            f"s): logged {a[k].tolist()!r}, re-run {b[k].tolist()!r}")
@@ -156,7 +208,7 @@ class StreamingComparison:
         now = ~late & (i < off + m)
         for what, logged, fresh in (("position", pos[now], batch.body_pos), ("orientation", quat[now], batch.body_quat)):
             self.compared += logged.size
-            k = first_bit_difference(logged, fresh[i[now] - off]) if len(logged) else None
+            k = self._first_difference(logged, fresh[i[now] - off], i[now]) if len(logged) else None
             if k is not None and what not in self.tf:
                 self.tf[what] = f"/tf body {what} differs first at t = {t[now][k]:.6g} s"
         later = i >= off + m
@@ -183,4 +235,9 @@ class StreamingComparison:
         problems += [self.tf[w] for w in ("position", "orientation") if w in self.tf]
         if self.late:
             problems.append(self.late)
-        return Verification(ok=not problems, compared=self.compared, problems=tuple(problems))
+        if problems and self.paths:
+            problems.append(f"the log was written on the {self.paths[0]} kernel path and re-run on the {self.paths[1]} "
+                            f"one: compared within {CROSS_PATH_ULPS} (k + 1) ulp at sample k; re-run it on the "
+                            f"{self.paths[0]} path to compare bit for bit")
+        return Verification(ok=not problems, compared=self.compared, problems=tuple(problems), paths=self.paths,
+                            worst=self.worst)

@@ -102,7 +102,8 @@ class RunInfo:
     scenario: the resolved scenario as plain JSON-able data (enough to re-run it);
     period: control period (s); physics_step: MuJoCo timestep (s);
     model_xml: the MJCF actually simulated (None for the ideal chain), so a log can rebuild 3D;
-    body_names: names of the bodies whose poses are in SampleBatch.body_pos/quat (world excluded).
+    body_names: names of the bodies whose poses are in SampleBatch.body_pos/quat (world excluded);
+    kernel: the path that computed the samples, "native" (the C kernel) or "python" ("" in older logs).
     """
 
     scenario: dict
@@ -112,6 +113,7 @@ class RunInfo:
     metric_settings: MetricSettings = field(default_factory=MetricSettings)
     model_xml: str | None = None
     body_names: tuple[str, ...] = ()
+    kernel: str = ""
 
     def to_dict(self) -> dict:
         d = asdict(self)
@@ -132,7 +134,7 @@ class RunInfo:
             # written before certificate_boxes existed had the branch and bound's own cap
             metric_settings=MetricSettings(**{"final_window_max": None, "certificate_boxes": UNLIMITED_RUN_BOXES, **{
                 k: tuple(v) if isinstance(v, list) else v for k, v in d.get("metric_settings", {}).items()}}),
-            model_xml=d.get("model_xml"), body_names=tuple(d.get("body_names", ())))
+            model_xml=d.get("model_xml"), body_names=tuple(d.get("body_names", ())), kernel=str(d.get("kernel", "")))
 
 
 @dataclass

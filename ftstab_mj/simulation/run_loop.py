@@ -265,7 +265,8 @@ class Simulation:
                                   clamp=self.plant.clamp_texts[i] if i in self._clamped else None))
         return RunInfo(scenario=dict(scenario or {}), loops=tuple(infos), period=self.period,
                        physics_step=self.physics_step, metric_settings=metric_settings,
-                       model_xml=self.model_xml, body_names=tuple(self.plant.body_names))
+                       model_xml=self.model_xml, body_names=tuple(self.plant.body_names),
+                       kernel="python" if self._native is None else "native")
 
     def _tracking_workspace(self, i: int, ref, max_abs, duration) -> dict | None:
         """Where loop i's bounds hold, in the error chain of a tracked reference: q = z_1 + ref(t) stays in
