@@ -49,6 +49,7 @@ as :class:`CallbackError`. The callback that was installed before the run is alw
 
 from __future__ import annotations
 
+import math
 from contextlib import contextmanager
 from dataclasses import dataclass
 
@@ -70,6 +71,9 @@ from ftstab_mj.config.validate import whole_steps
 _DIVERGENCE_WARNINGS = (mujoco.mjtWarning.mjWARN_BADQPOS, mujoco.mjtWarning.mjWARN_BADQVEL,
                         mujoco.mjtWarning.mjWARN_BADQACC, mujoco.mjtWarning.mjWARN_BADCTRL)
 _SCALARS = tuple(f for f in LOOP_FIELDS if f not in ("t", "z"))
+# where the Python callback writes a sample's fields in its record block (Simulation._rec_block, one
+# row per field of _SCALARS): the law's outputs u .. gamma_hat together, then the true phi and gamma
+_OUTPUTS, _PHI, _GAMMA = slice(0, _SCALARS.index("gamma_hat") + 1), _SCALARS.index("phi"), _SCALARS.index("gamma")
 # What the loop reads of a loop description: ftstab_mj.scenario.LoopSpec has them (the scenario layer
 # sits above this one, so the loop asks for the fields instead of the class).
 _LOOP_FIELDS = ("name", "z0", "law", "disturbance", "gain", "ref", "sensor", "observer", "actuator")
@@ -360,9 +364,11 @@ class Simulation:
         integrating, refresh = self.plant.integrating, self.plant.refresh_before_sample
         step = self.plant.step  # mujoco.mj_step, unless the plant integrates itself (plants/base.py)
         dof, act = self._dof, self._act
+        self._python_batch(d)
+        warnings = self._warnings
         for k in range(n_samples):
             base = k * N
-            if self._warning_count() != warn0:
+            if sum([w.number for w in warnings]) != warn0:
                 break
             if refresh:
                 mujoco.mj_forward(m, d)
@@ -382,6 +388,22 @@ class Simulation:
                     qfrc[dof] = force[s]
                     step(m, d)
 
+    def _python_batch(self, d) -> None:
+        """What the Python callback reuses at every sample of this batch, so that a sample allocates
+        nothing it can avoid: views of MjData's arrays and of the records (their memory does not
+        move), each loop's (index, law, loop, phi state dependent, law state view, stateful), the sample times
+        recorded in one write (t_k does not depend on the run)."""
+        self._rec_t[:] = self._t
+        self._d_ctrl, self._d_qfrc, self._d_xpos, self._d_xquat = d.ctrl, d.qfrc_applied, d.xpos, d.xquat
+        self._z_rows = tuple(self._z)  # loop i's z (r,), a view of self._z
+        self._z_flat = self._z.reshape(-1)
+        # z_1 - ref: the set points in column 0, 0.0 elsewhere (x - 0.0 is x, bit for bit)
+        self._z_ref = np.zeros_like(self._z)
+        self._z_ref[:, 0] = self.refs
+        self._py_loops = tuple((i, law, L, L.disturbance.state_dependent, d.userdata[sl], stateful)
+                               for i, (law, L, sl, stateful) in enumerate(zip(self.laws, self.loops,
+                                                                              self.state_slices, self._stateful)))
+
     def _warning_count(self) -> int:
         return sum([w.number for w in self._warnings])
 
@@ -398,7 +420,10 @@ class Simulation:
         # is a view of its row.
         self._rec_t = np.empty(n_samples)
         self._rec_z = np.empty((n_loops, n_samples, self.plant.r))
-        self._rec_scalars = {f: np.empty((n_loops, n_samples)) for f in _SCALARS}
+        # one block, a contiguous (n_loops, n_samples) array per field (the native callback writes them
+        # so), from which the Python callback writes a law's six outputs of a sample in one call
+        self._rec_block = np.empty((len(_SCALARS), n_loops, n_samples))
+        self._rec_scalars = dict(zip(_SCALARS, self._rec_block))
         self._pos = np.empty((n_samples, n_body, 3))
         self._quat = np.empty((n_samples, n_body, 4))
         recs = [{"t": self._rec_t, "z": self._rec_z[i], **{f: a[i] for f, a in self._rec_scalars.items()}}
@@ -435,17 +460,18 @@ class Simulation:
 
     def _sample(self, m, d) -> None:
         """One control sample, the per-sample pipeline: read z -> each loop's law -> u -> inject, record.
-        A stage acting on z (sensor, observer) or on u (actuator) goes between two of these steps."""
+        A stage acting on z (sensor, observer) or on u (actuator) goes between two of these steps.
+        It reuses what :meth:`_python_batch` prepared: one sample costs what a hand-written loop does."""
         row = self._row + 1
-        t = self._t[row]
         z = self._read_z(d, row)
-        zmax = float(np.abs(z).max())  # the method: np.max's dispatch costs as much as the maximum here
-        if not zmax <= self.divergence_limit:  # also catches NaN
-            self._stop(d, f"diverged at t = {t:.6g} s: max |z| = {zmax:.3g} is beyond the divergence "
+        # max |z| <= limit, NaN failing it; on a few floats, Python's abs and compare beat np.abs(z).max()
+        if not all(map(self.divergence_limit.__ge__, map(abs, self._z_flat.tolist()))):
+            zmax = float(np.abs(z).max())
+            self._stop(d, f"diverged at t = {self._t[row]:.6g} s: max |z| = {zmax:.3g} is beyond the divergence "
                           f"limit {self.divergence_limit:g}")
             return
         z_law = self._sense(d, z, row)
-        if not self._control_laws(d, z, row, t, z_law):
+        if not self._control_laws(d, z, row, z_law):
             return
         self._actuate(d, row)
         self._inject(m, d, row)
@@ -455,10 +481,7 @@ class Simulation:
         tracked reference: z_i = q^(i-1) - ref^(i-1)(t) at this sample)."""
         z = self._z
         self.plant.sense(d, z)
-        if self._R is not None:
-            z -= self._R[row, :, :-1]
-        else:
-            z[:, 0] -= self.refs
+        np.subtract(z, self._z_ref if self._R is None else self._R[row, :, :-1], out=z)
         return z
 
     def _sense(self, d, z, row: int) -> np.ndarray:
@@ -474,33 +497,29 @@ class Simulation:
                 rec["z_hat"][row] = z_law[i]
         return z_law
 
-    def _control_laws(self, d, z, row: int, t: float, z_law) -> bool:
+    def _control_laws(self, d, z, row: int, z_law) -> bool:
         """Evaluate every loop's law at z_law (what it sees), record its outputs with the true z,
         advance its state; u -> self._u. False (and the run stopped) when a control is not finite."""
-        s, ud = self._s, d.userdata
-        self._rec_t[row] = t  # every loop's t and z records are rows of these (a sample is kept when _inject ends)
-        self._rec_z[:, row] = z
-        for i, (law, L, rec, sl, stateful) in enumerate(zip(self.laws, self.loops, self._rec, self.state_slices,
-                                                             self._stateful)):
-            state = ud[sl]
-            out = law.evaluate(z_law[i], state)
-            if L.disturbance.state_dependent:  # worst case: held over the period with this sample's dV1/dz_r
+        self._rec_z[:, row] = z  # every loop's z record is a row of it (a sample is kept when _inject ends)
+        rows = self._z_rows if z_law is z else z_law
+        block = self._rec_block
+        for i, law, L, state_dependent, state, stateful in self._py_loops:
+            out = law.evaluate(rows[i], state)
+            if state_dependent:  # worst case: held over the period with this sample's dV1/dz_r
+                s, t = self._s, self._t[row]
                 value = float(L.disturbance(t, out.dV1_dzr))
                 self._inj[s:s + self.N, i] = value
                 self._force[s:s + self.N, i] = value * self._force_factor[i]
             u = float(out.u)
-            if not np.isfinite(u):
-                self._stop(d, f"diverged at t = {t:.6g} s: the control of loop {L.name!r} is {u}")
+            if not math.isfinite(u):
+                self._stop(d, f"diverged at t = {self._t[row]:.6g} s: the control of loop {L.name!r} is {u}")
                 return False
             self._u[i] = u
-            rec["u"][row] = u
-            rec["u0"][row] = out.u0
-            rec["V1"][row] = out.V1
-            rec["dV1_dzr"][row] = out.dV1_dzr
-            rec["phi_hat"][row] = out.phi_hat  # the law's (robust: phibar / gamma_m), as the ideal chain logs it
-            rec["gamma_hat"][row] = out.gamma_hat
+            # u, u0, V1, dV1_dzr, phi_hat (the law's: robust's phibar / gamma_m, as the ideal chain logs
+            # it), gamma_hat in one write
+            block[_OUTPUTS, i, row] = (u, out.u0, out.V1, out.dV1_dzr, out.phi_hat, out.gamma_hat)
             if stateful:
-                ud[sl] = law.advance(z_law[i], state, out, self.period)
+                state[:] = law.advance(rows[i], state, out, self.period)
         return True
 
     def _actuate(self, d, row: int) -> None:
@@ -519,23 +538,28 @@ class Simulation:
     def _inject(self, m, d, row: int) -> None:
         """Write the held control (ctrl = gain u) and the disturbance force; record the true phi,
         gamma and the body poses of this sample."""
-        s = self._s
+        s, N = self._s, self.N
         u, u_steps = (self._u_applied, self._u_steps) if self._staged else (self._u, self._u)
-        self._ctrl[s:s + self.N] = self._gain[s:s + self.N] * u_steps  # held u times each step's gain
-        d.ctrl[self._act] = self._ctrl[s]
+        if N == 1:  # the sample's step only
+            self._d_ctrl[self._act] = self._gain[s] * u_steps
+        else:  # held u times each step's gain; _step_batch writes the other steps' ctrl
+            ctrl = self._ctrl[s:s + N]
+            np.multiply(self._gain[s:s + N], u_steps, out=ctrl)
+            self._d_ctrl[self._act] = ctrl[0]
         if not self.plant.integrating:
-            d.qfrc_applied[self._dof] = self._force[s]
+            self._d_qfrc[self._dof] = self._force[s]
+        gain = self._gain[s]
         if self._clamped:  # what MuJoCo's actuator applies (its ctrlrange, forcerange): the phi of the chain
-            u = self.plant.applied(u, self._gain[s])  # is the rest of q^(r) (h (phi + gamma u_applied) per period)
+            u = self.plant.applied(u, gain)  # is the rest of q^(r) (h (phi + gamma u_applied) per period)
             for i in self._clamped:
                 self._rec[i]["u_applied"][row] = u[i]
-        phi, gamma = self.plant.true_chain(m, d, u, self._gain[s], self._inj[s])
+        phi, gamma = self.plant.true_chain(m, d, u, gain, self._inj[s])
         if self._R is not None:  # the error chain's: z_r' = q^(r) - ref^(r)
             phi = phi - self._R[row, :, -1]
-        self._rec_scalars["phi"][:, row] = phi  # every loop's at once (each loop's record is a row of it)
-        self._rec_scalars["gamma"][:, row] = gamma
-        self._pos[row] = d.xpos[self._body_ids]
-        self._quat[row] = d.xquat[self._body_ids]
+        self._rec_block[_PHI, :, row] = phi  # every loop's at once
+        self._rec_block[_GAMMA, :, row] = gamma
+        self._d_xpos.take(self._body_ids, axis=0, out=self._pos[row])
+        self._d_xquat.take(self._body_ids, axis=0, out=self._quat[row])
         self._row = row
 
     def _stop(self, d, reason: str) -> None:
