@@ -51,6 +51,7 @@ from __future__ import annotations
 
 import math
 from contextlib import contextmanager
+from operator import attrgetter
 from dataclasses import dataclass
 
 import mujoco
@@ -71,8 +72,8 @@ from ftstab_mj.config.validate import whole_steps
 _DIVERGENCE_WARNINGS = (mujoco.mjtWarning.mjWARN_BADQPOS, mujoco.mjtWarning.mjWARN_BADQVEL,
                         mujoco.mjtWarning.mjWARN_BADQACC, mujoco.mjtWarning.mjWARN_BADCTRL)
 _SCALARS = tuple(f for f in LOOP_FIELDS if f not in ("t", "z"))
-# where the Python callback writes a sample's fields in its record block (Simulation._rec_block, one
-# row per field of _SCALARS): the law's outputs u .. gamma_hat together, then the true phi and gamma
+# where the Python callback finds a sample's fields in its record block (Simulation._rec_block, one
+# row per field of _SCALARS): the law's outputs u .. gamma_hat, then the true phi and gamma
 _OUTPUTS, _PHI, _GAMMA = slice(0, _SCALARS.index("gamma_hat") + 1), _SCALARS.index("phi"), _SCALARS.index("gamma")
 # What the loop reads of a loop description: ftstab_mj.scenario.LoopSpec has them (the scenario layer
 # sits above this one, so the loop asks for the fields instead of the class).
@@ -365,10 +366,10 @@ class Simulation:
         step = self.plant.step  # mujoco.mj_step, unless the plant integrates itself (plants/base.py)
         dof, act = self._dof, self._act
         self._python_batch(d)
-        warnings = self._warnings
+        warnings, number = self._warnings, attrgetter("number")
         for k in range(n_samples):
             base = k * N
-            if sum([w.number for w in warnings]) != warn0:
+            if sum(map(number, warnings)) != warn0:
                 break
             if refresh:
                 mujoco.mj_forward(m, d)
@@ -391,16 +392,24 @@ class Simulation:
     def _python_batch(self, d) -> None:
         """What the Python callback reuses at every sample of this batch, so that a sample allocates
         nothing it can avoid: views of MjData's arrays and of the records (their memory does not
-        move), each loop's (index, law, loop, phi state dependent, law state view, stateful), the sample times
-        recorded in one write (t_k does not depend on the run)."""
+        move), each loop's (index, law, loop, phi state dependent, law state view, stateful, its
+        records of u .. gamma_hat), the sample times recorded in one write (t_k does not depend on
+        the run), and the per-step gain and force as Python floats (on a few numbers a float
+        product costs a tenth of NumPy's call and rounds the same: IEEE double either way)."""
         self._rec_t[:] = self._t
         self._d_ctrl, self._d_qfrc, self._d_xpos, self._d_xquat = d.ctrl, d.qfrc_applied, d.xpos, d.xquat
         self._z_rows = tuple(self._z)  # loop i's z (r,), a view of self._z
         self._z_flat = self._z.reshape(-1)
-        # z_1 - ref: the set points in column 0, 0.0 elsewhere (x - 0.0 is x, bit for bit)
+        # z_1 - ref: the set points in column 0, 0.0 elsewhere (x - 0.0 is x, bit for bit); none when
+        # every set point is +0.0 (x - +0.0 is x: nothing to do)
         self._z_ref = np.zeros_like(self._z)
         self._z_ref[:, 0] = self.refs
-        self._py_loops = tuple((i, law, L, L.disturbance.state_dependent, d.userdata[sl], stateful)
+        self._ref_zero = self._R is None and not (np.any(self.refs) or np.any(np.signbit(self.refs)))
+        self._gain_f, self._force_f = self._gain.tolist(), self._force.tolist()
+        self._u_f = [0.0] * len(self.loops)
+        self._act_f, self._dof_f = self._act.tolist(), self._dof.tolist()
+        self._py_loops = tuple((i, law, L, L.disturbance.state_dependent, d.userdata[sl], stateful,
+                                tuple(self._rec_block[_OUTPUTS, i]))
                                for i, (law, L, sl, stateful) in enumerate(zip(self.laws, self.loops,
                                                                               self.state_slices, self._stateful)))
 
@@ -420,8 +429,7 @@ class Simulation:
         # is a view of its row.
         self._rec_t = np.empty(n_samples)
         self._rec_z = np.empty((n_loops, n_samples, self.plant.r))
-        # one block, a contiguous (n_loops, n_samples) array per field (the native callback writes them
-        # so), from which the Python callback writes a law's six outputs of a sample in one call
+        # one block, a contiguous (n_loops, n_samples) array per field (the native callback writes them so)
         self._rec_block = np.empty((len(_SCALARS), n_loops, n_samples))
         self._rec_scalars = dict(zip(_SCALARS, self._rec_block))
         self._pos = np.empty((n_samples, n_body, 3))
@@ -481,7 +489,8 @@ class Simulation:
         tracked reference: z_i = q^(i-1) - ref^(i-1)(t) at this sample)."""
         z = self._z
         self.plant.sense(d, z)
-        np.subtract(z, self._z_ref if self._R is None else self._R[row, :, :-1], out=z)
+        if not self._ref_zero:
+            np.subtract(z, self._z_ref if self._R is None else self._R[row, :, :-1], out=z)
         return z
 
     def _sense(self, d, z, row: int) -> np.ndarray:
@@ -502,22 +511,27 @@ class Simulation:
         advance its state; u -> self._u. False (and the run stopped) when a control is not finite."""
         self._rec_z[:, row] = z  # every loop's z record is a row of it (a sample is kept when _inject ends)
         rows = self._z_rows if z_law is z else z_law
-        block = self._rec_block
-        for i, law, L, state_dependent, state, stateful in self._py_loops:
+        for i, law, L, state_dependent, state, stateful, recs in self._py_loops:
             out = law.evaluate(rows[i], state)
             if state_dependent:  # worst case: held over the period with this sample's dV1/dz_r
                 s, t = self._s, self._t[row]
                 value = float(L.disturbance(t, out.dV1_dzr))
                 self._inj[s:s + self.N, i] = value
                 self._force[s:s + self.N, i] = value * self._force_factor[i]
+                self._force_f[s][i] = float(self._force[s, i])
             u = float(out.u)
             if not math.isfinite(u):
                 self._stop(d, f"diverged at t = {self._t[row]:.6g} s: the control of loop {L.name!r} is {u}")
                 return False
-            self._u[i] = u
-            # u, u0, V1, dV1_dzr, phi_hat (the law's: robust's phibar / gamma_m, as the ideal chain logs
-            # it), gamma_hat in one write
-            block[_OUTPUTS, i, row] = (u, out.u0, out.V1, out.dV1_dzr, out.phi_hat, out.gamma_hat)
+            self._u[i] = self._u_f[i] = u
+            # phi_hat: the law's (robust: phibar / gamma_m), as the ideal chain logs it
+            rec_u, rec_u0, rec_V1, rec_dV1, rec_phi_hat, rec_gamma_hat = recs
+            rec_u[row] = u
+            rec_u0[row] = out.u0
+            rec_V1[row] = out.V1
+            rec_dV1[row] = out.dV1_dzr
+            rec_phi_hat[row] = out.phi_hat
+            rec_gamma_hat[row] = out.gamma_hat
             if stateful:
                 state[:] = law.advance(rows[i], state, out, self.period)
         return True
@@ -540,14 +554,18 @@ class Simulation:
         gamma and the body poses of this sample."""
         s, N = self._s, self.N
         u, u_steps = (self._u_applied, self._u_steps) if self._staged else (self._u, self._u)
-        if N == 1:  # the sample's step only
-            self._d_ctrl[self._act] = self._gain[s] * u_steps
+        if N == 1 and not self._staged:  # the sample's step only: ctrl = gain u, float by float
+            d_ctrl = self._d_ctrl
+            for a, g, ui in zip(self._act_f, self._gain_f[s], self._u_f):
+                d_ctrl[a] = g * ui
         else:  # held u times each step's gain; _step_batch writes the other steps' ctrl
             ctrl = self._ctrl[s:s + N]
             np.multiply(self._gain[s:s + N], u_steps, out=ctrl)
             self._d_ctrl[self._act] = ctrl[0]
         if not self.plant.integrating:
-            self._d_qfrc[self._dof] = self._force[s]
+            d_qfrc = self._d_qfrc
+            for f, v in zip(self._dof_f, self._force_f[s]):
+                d_qfrc[f] = v
         gain = self._gain[s]
         if self._clamped:  # what MuJoCo's actuator applies (its ctrlrange, forcerange): the phi of the chain
             u = self.plant.applied(u, gain)  # is the rest of q^(r) (h (phi + gamma u_applied) per period)
