@@ -408,6 +408,10 @@ class Simulation:
         self._gain_f, self._force_f = self._gain.tolist(), self._force.tolist()
         self._u_f = [0.0] * len(self.loops)
         self._act_f, self._dof_f = self._act.tolist(), self._dof.tolist()
+        # the recorded bodies' poses: views of xpos, xquat when the bodies are consecutive (a plain copy)
+        ids = self._body_ids
+        consecutive = len(ids) > 0 and np.array_equal(ids, np.arange(ids[0], ids[0] + len(ids)))
+        self._body_rows = (d.xpos[ids[0]:ids[0] + len(ids)], d.xquat[ids[0]:ids[0] + len(ids)]) if consecutive else None
         self._py_loops = tuple((i, law, L, L.disturbance.state_dependent, d.userdata[sl], stateful,
                                 tuple(self._rec_block[_OUTPUTS, i]))
                                for i, (law, L, sl, stateful) in enumerate(zip(self.laws, self.loops,
@@ -478,10 +482,11 @@ class Simulation:
             self._stop(d, f"diverged at t = {self._t[row]:.6g} s: max |z| = {zmax:.3g} is beyond the divergence "
                           f"limit {self.divergence_limit:g}")
             return
-        z_law = self._sense(d, z, row)
+        z_law = self._sense(d, z, row) if self._staged else z
         if not self._control_laws(d, z, row, z_law):
             return
-        self._actuate(d, row)
+        if self._staged:
+            self._actuate(d, row)
         self._inject(m, d, row)
 
     def _read_z(self, d, row: int) -> np.ndarray:
@@ -494,10 +499,8 @@ class Simulation:
         return z
 
     def _sense(self, d, z, row: int) -> np.ndarray:
-        """What the laws see: z itself, or for a loop with stages its sensor's reading through its
-        observer (loop_stages.LoopStages.measure; z_measured and z_hat recorded)."""
-        if not self._staged:
-            return z
+        """What the laws see (a simulation with stages): z itself, or for a loop with stages its sensor's
+        reading through its observer (loop_stages.LoopStages.measure; z_measured and z_hat recorded)."""
         z_law, k, ud = z.copy(), self._k0 + row, d.userdata
         for i, (st, sl, rec) in enumerate(zip(self.stages, self.stage_slices, self._rec)):
             if st is not None:
@@ -537,10 +540,9 @@ class Simulation:
         return True
 
     def _actuate(self, d, row: int) -> None:
-        """What the plant receives over the period: u held, or for a loop with an actuator model its
-        output at each physics step (loop_stages.LoopStages.actuate; u_applied recorded)."""
-        if not self._staged:
-            return
+        """What the plant receives over the period (a simulation with stages): u held, or for a loop with
+        an actuator model its output at each physics step (loop_stages.LoopStages.actuate; u_applied
+        recorded)."""
         k, ud = self._k0 + row, d.userdata
         self._u_applied[:] = self._u
         self._u_steps[:] = self._u
@@ -576,8 +578,11 @@ class Simulation:
             phi = phi - self._R[row, :, -1]
         self._rec_block[_PHI, :, row] = phi  # every loop's at once
         self._rec_block[_GAMMA, :, row] = gamma
-        self._d_xpos.take(self._body_ids, axis=0, out=self._pos[row])
-        self._d_xquat.take(self._body_ids, axis=0, out=self._quat[row])
+        if self._body_rows is None:
+            self._d_xpos.take(self._body_ids, axis=0, out=self._pos[row])
+            self._d_xquat.take(self._body_ids, axis=0, out=self._quat[row])
+        else:
+            self._pos[row], self._quat[row] = self._body_rows
         self._row = row
 
     def _stop(self, d, reason: str) -> None:
