@@ -51,7 +51,6 @@ from __future__ import annotations
 
 import math
 from contextlib import contextmanager
-from operator import attrgetter
 from dataclasses import dataclass
 
 import mujoco
@@ -366,11 +365,17 @@ class Simulation:
         step = self.plant.step  # mujoco.mj_step, unless the plant integrates itself (plants/base.py)
         dof, act = self._dof, self._act
         self._python_batch(d)
-        warnings, number = self._warnings, attrgetter("number")
+        # MuJoCo's warning counts: a live view, read as one list a sample (a tenth of the four counters'
+        # attributes); any change is looked at, a divergence warning stops the batch
+        numbers, divergence = d.warning.number, [int(k) for k in _DIVERGENCE_WARNINGS]
+        seen = numbers.tolist()
         for k in range(n_samples):
             base = k * N
-            if sum(map(number, warnings)) != warn0:
-                break
+            now = numbers.tolist()
+            if now != seen:
+                if sum(now[i] for i in divergence) != warn0:
+                    break
+                seen = now
             if refresh:
                 mujoco.mj_forward(m, d)
             self._s = base
