@@ -385,7 +385,7 @@ class Simulation:
                 break
             if integrating:
                 qfrc[dof] += force[base]
-            for s in range(base + 1, base + N):
+            for s in range(base + 1, base + N) if N > 1 else ():
                 ctrl[act] = ctrl_steps[s]
                 if integrating:
                     step(m, d)
@@ -413,6 +413,7 @@ class Simulation:
         self._gain_f, self._force_f = self._gain.tolist(), self._force.tolist()
         self._u_f = [0.0] * len(self.loops)
         self._act_f, self._dof_f = self._act.tolist(), self._dof.tolist()
+        self._rec_phi, self._rec_gamma = self._rec_block[_PHI], self._rec_block[_GAMMA]
         # the recorded bodies' poses: views of xpos, xquat when the bodies are consecutive (a plain copy)
         ids = self._body_ids
         consecutive = len(ids) > 0 and np.array_equal(ids, np.arange(ids[0], ids[0] + len(ids)))
@@ -581,8 +582,8 @@ class Simulation:
         phi, gamma = self.plant.true_chain(m, d, u, gain, self._inj[s])
         if self._R is not None:  # the error chain's: z_r' = q^(r) - ref^(r)
             phi = phi - self._R[row, :, -1]
-        self._rec_block[_PHI, :, row] = phi  # every loop's at once
-        self._rec_block[_GAMMA, :, row] = gamma
+        self._rec_phi[:, row] = phi  # every loop's at once
+        self._rec_gamma[:, row] = gamma
         if self._body_rows is None:
             self._d_xpos.take(self._body_ids, axis=0, out=self._pos[row])
             self._d_xquat.take(self._body_ids, axis=0, out=self._quat[row])
