@@ -1,7 +1,7 @@
 """Cost of every registered control law in the run loop, on the cart and on the arm, as a ratio to bare
 MuJoCo stepping.
 
-    python benchmarks/law_costs.py [--repeat 3] [--steps 10000] [--r 2] [--no-python]
+    python benchmarks/law_costs.py [--repeat 3] [--steps 10000] [--r 2] [--no-python] [--law LABEL ...]
 
 The laws: every entry of the shipped comparisons scenarios/compare/cart_r<r>.toml and field_r<r>.toml
 (their parameters, one row per label). The plants: the cart (r = 2, or the integrating cart at r = 3)
@@ -133,12 +133,15 @@ def main(argv=None) -> int:
     ap.add_argument("--steps", type=int, default=10000)
     ap.add_argument("--r", type=int, default=2, choices=(2, 3))
     ap.add_argument("--no-python", action="store_true", help="time the native path only")
+    ap.add_argument("--law", action="append", metavar="LABEL", help="only this law (repeatable; default: all)")
     args = ap.parse_args(argv)
     plants = [make_plant("cart" if args.r == 2 else "cart_integrating")] + ([make_plant("arm")] if args.r == 2 else [])
     print(f"law costs, r = {args.r}: {args.steps} samples of 1 ms, {args.repeat} repetitions, CPU time")
     print(f"{'law':<32} {'plant':<17} {'path':<7} {'x bare (median, min-max)':>26} {'extra us/sample':>16}"
           f"{'  x hand' if args.r == 2 else ''}")
     for label, controller in entries(args.r):
+        if args.law and label not in args.law:
+            continue
         law = ControllerSpec.of(**controller).build(args.r)
         paths = ([True] if native.use_native("auto", law) else []) + ([] if args.no_python else [False])
         for plant in plants:

@@ -479,7 +479,8 @@ class Simulation:
     def _sample(self, m, d) -> None:
         """One control sample, the per-sample pipeline: read z -> each loop's law -> u -> inject, record.
         A stage acting on z (sensor, observer) or on u (actuator) goes between two of these steps.
-        It reuses what :meth:`_python_batch` prepared: one sample costs what a hand-written loop does."""
+        It reuses what :meth:`_python_batch` prepared, so that it allocates little beyond what the laws
+        and the plant's sense and true_chain do (benchmarks/law_costs.py, column "x hand")."""
         row = self._row + 1
         z = self._read_z(d, row)
         # max |z| <= limit, NaN failing it; on a few floats, Python's abs and compare beat np.abs(z).max()
