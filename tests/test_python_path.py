@@ -11,14 +11,17 @@ on this platform (x86_64 Linux, the pinned NumPy and MuJoCo): the Python path ev
 NumPy one state at a time, whose libm results are deterministic for a given build.
 """
 
+import dataclasses
 import hashlib
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from ftstab_mj.control.laws.linear import LinearLaw
 from ftstab_mj.plants import make_plant
 from ftstab_mj.scenario.loader import load_scenario, read_toml, scenario_from_dict
+from ftstab_mj.simulation import native
 from ftstab_mj.simulation.run_loop import Simulation
 from ftstab_mj.studies.compare import load_comparison
 
@@ -98,11 +101,12 @@ def cases() -> dict:
     return out
 
 
-def digest(sc) -> str:
-    """SHA-256 of every field of every sample of the Python path's run of ``sc`` (BATCHES samples)."""
+def digest(sc, loops=None, native_choice=False) -> str:
+    """SHA-256 of every field of every sample of the Python path's run of ``sc`` (BATCHES samples);
+    ``loops``: instead of the scenario's."""
     s = sc.sim
-    sim = Simulation(make_plant(sc.plant.model, sc.plant.params), sc.loops, s.period, s.physics_step,
-                     s.integrator, s.divergence_limit, native=False)
+    sim = Simulation(make_plant(sc.plant.model, sc.plant.params), loops or sc.loops, s.period, s.physics_step,
+                     s.integrator, s.divergence_limit, native=native_choice)
     h = hashlib.sha256()
 
     def add(name, a):
@@ -130,6 +134,20 @@ def scenarios():
 def test_the_cases_are_the_table():
     """Every case has its reference digest (a new shipped scenario or law is added to the table)."""
     assert list(cases()) == list(EXPECTED)
+
+
+class PluginLinear(LinearLaw):
+    """A law from outside: a subclass, so no C twin (its class does not declare one)."""
+
+
+def test_a_plugin_law_takes_the_python_path_with_the_same_samples(scenarios):
+    """native="auto" (the default) puts a plugin law on the Python path, which records what the
+    same maths recorded before the path was made cheap (the shipped linear law forced onto it)."""
+    sc = scenarios["cart_r2:linear"]
+    plugin = PluginLinear(sc.loops[0].controller.poles)
+    assert not native.use_native("auto", plugin)
+    loops = [dataclasses.replace(sc.loops[0], controller=plugin)]
+    assert digest(sc, loops, native_choice="auto") == EXPECTED["cart_r2:linear"]
 
 
 @pytest.mark.parametrize("name", list(EXPECTED))
