@@ -415,6 +415,7 @@ class Simulation:
         self._u_f = [0.0] * len(self.loops)
         self._act_f, self._dof_f = tuple(enumerate(self._act.tolist())), tuple(enumerate(self._dof.tolist()))
         self._rec_phi, self._rec_gamma = self._rec_block[_PHI], self._rec_block[_GAMMA]
+        self._rec_z_rows = self._rec_z.transpose(1, 0, 2)  # (n_samples, n_loops, r): sample k's z at [k]
         # the recorded bodies' poses: views of xpos, xquat when the bodies are consecutive (a plain copy)
         ids = self._body_ids
         consecutive = len(ids) > 0 and np.array_equal(ids, np.arange(ids[0], ids[0] + len(ids)))
@@ -520,7 +521,7 @@ class Simulation:
     def _control_laws(self, d, z, row: int, z_law) -> bool:
         """Evaluate every loop's law at z_law (what it sees), record its outputs with the true z,
         advance its state; u -> self._u. False (and the run stopped) when a control is not finite."""
-        self._rec_z[:, row] = z  # every loop's z record is a row of it (a sample is kept when _inject ends)
+        self._rec_z_rows[row] = z  # every loop's z record is a row of it (a sample is kept when _inject ends)
         rows = self._z_rows if z_law is z else z_law
         for i, law, L, state_dependent, state, stateful, recs in self._py_loops:
             out = law.evaluate(rows[i], state)
