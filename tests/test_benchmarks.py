@@ -32,6 +32,10 @@ def test_law_costs_benchmark_prints_every_law_on_the_cart_and_the_arm():
         paths = {(row[1], row[2]) for row in rows if row[0] == law}
         want = {(plant, path) for plant in ("cart", "arm") for path in ("python",) + (("native",) if native.available() else ())}
         assert want <= paths, (law, paths)
+    # the Python path against a user's loop with the same law: a ratio on every Python row (r = 2)
+    assert "x hand" in out.stdout.splitlines()[1]
+    python_rows = [row for row in rows if "python" in row]
+    assert python_rows and all(float(row[row.index("python") + 4]) > 0 for row in python_rows), out.stdout
 
 
 def test_live_costs_benchmark_prints_every_case():

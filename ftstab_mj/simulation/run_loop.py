@@ -49,6 +49,7 @@ as :class:`CallbackError`. The callback that was installed before the run is alw
 
 from __future__ import annotations
 
+import math
 from contextlib import contextmanager
 from dataclasses import dataclass
 
@@ -70,6 +71,9 @@ from ftstab_mj.config.validate import whole_steps
 _DIVERGENCE_WARNINGS = (mujoco.mjtWarning.mjWARN_BADQPOS, mujoco.mjtWarning.mjWARN_BADQVEL,
                         mujoco.mjtWarning.mjWARN_BADQACC, mujoco.mjtWarning.mjWARN_BADCTRL)
 _SCALARS = tuple(f for f in LOOP_FIELDS if f not in ("t", "z"))
+# where the Python callback finds a sample's fields in its record block (Simulation._rec_block, one
+# row per field of _SCALARS): the law's outputs u .. gamma_hat, then the true phi and gamma
+_OUTPUTS, _PHI, _GAMMA = slice(0, _SCALARS.index("gamma_hat") + 1), _SCALARS.index("phi"), _SCALARS.index("gamma")
 # What the loop reads of a loop description: ftstab_mj.scenario.LoopSpec has them (the scenario layer
 # sits above this one, so the loop asks for the fields instead of the class).
 _LOOP_FIELDS = ("name", "z0", "law", "disturbance", "gain", "ref", "sensor", "observer", "actuator")
@@ -368,10 +372,18 @@ class Simulation:
         integrating, refresh = self.plant.integrating, self.plant.refresh_before_sample
         step = self.plant.step  # mujoco.mj_step, unless the plant integrates itself (plants/base.py)
         dof, act = self._dof, self._act
+        self._python_batch(d)
+        # MuJoCo's warning counts: a live view, read as one list a sample (a tenth of the four counters'
+        # attributes); any change is looked at, a divergence warning stops the batch
+        numbers, divergence = d.warning.number, [int(k) for k in _DIVERGENCE_WARNINGS]
+        seen = numbers.tolist()
         for k in range(n_samples):
             base = k * N
-            if self._warning_count() != warn0:
-                break
+            now = numbers.tolist()
+            if now != seen:
+                if sum(now[i] for i in divergence) != warn0:
+                    break
+                seen = now
             if refresh:
                 mujoco.mj_forward(m, d)
             self._s = base
@@ -381,7 +393,7 @@ class Simulation:
                 break
             if integrating:
                 qfrc[dof] += force[base]
-            for s in range(base + 1, base + N):
+            for s in range(base + 1, base + N) if N > 1 else ():
                 ctrl[act] = ctrl_steps[s]
                 if integrating:
                     step(m, d)
@@ -389,6 +401,37 @@ class Simulation:
                 else:
                     qfrc[dof] = force[s]
                     step(m, d)
+
+    def _python_batch(self, d) -> None:
+        """What the Python callback reuses at every sample of this batch, so that a sample allocates
+        nothing it can avoid: views of MjData's arrays and of the records (their memory does not
+        move), each loop's (index, law, loop, phi state dependent, law state view, stateful, its
+        records of u .. gamma_hat), the sample times recorded in one write (t_k does not depend on
+        the run), and the per-step gain and force as Python floats (on a few numbers a float
+        product costs a tenth of NumPy's call and rounds the same: IEEE double either way)."""
+        self._rec_t[:] = self._t
+        self._d_ctrl, self._d_qfrc, self._d_xpos, self._d_xquat = d.ctrl, d.qfrc_applied, d.xpos, d.xquat
+        self._z_rows = tuple(self._z)  # loop i's z (r,), a view of self._z
+        self._z_flat = self._z.reshape(-1)
+        # z_1 - ref: the set points in column 0, 0.0 elsewhere (x - 0.0 is x, bit for bit); none when
+        # every set point is +0.0 (x - +0.0 is x: nothing to do)
+        self._z_ref = np.zeros_like(self._z)
+        self._z_ref[:, 0] = self.refs
+        self._ref_zero = self._R is None and not (np.any(self.refs) or np.any(np.signbit(self.refs)))
+        # flat: step s, loop i at s n + i (one list of floats is ten times quicker to make than rows)
+        self._gain_f, self._force_f = self._gain.ravel().tolist(), self._force.ravel().tolist()
+        self._u_f = [0.0] * len(self.loops)
+        self._act_f, self._dof_f = tuple(enumerate(self._act.tolist())), tuple(enumerate(self._dof.tolist()))
+        self._rec_phi, self._rec_gamma = self._rec_block[_PHI], self._rec_block[_GAMMA]
+        self._rec_z_rows = self._rec_z.transpose(1, 0, 2)  # (n_samples, n_loops, r): sample k's z at [k]
+        # the recorded bodies' poses: views of xpos, xquat when the bodies are consecutive (a plain copy)
+        ids = self._body_ids
+        consecutive = len(ids) > 0 and np.array_equal(ids, np.arange(ids[0], ids[0] + len(ids)))
+        self._body_rows = (d.xpos[ids[0]:ids[0] + len(ids)], d.xquat[ids[0]:ids[0] + len(ids)]) if consecutive else None
+        self._py_loops = tuple((i, law, L, L.disturbance.state_dependent, d.userdata[sl], stateful,
+                                tuple(self._rec_block[_OUTPUTS, i]))
+                               for i, (law, L, sl, stateful) in enumerate(zip(self.laws, self.loops,
+                                                                              self.state_slices, self._stateful)))
 
     def _warning_count(self) -> int:
         return sum([w.number for w in self._warnings])
@@ -406,7 +449,9 @@ class Simulation:
         # is a view of its row.
         self._rec_t = np.empty(n_samples)
         self._rec_z = np.empty((n_loops, n_samples, self.plant.r))
-        self._rec_scalars = {f: np.empty((n_loops, n_samples)) for f in _SCALARS}
+        # one block, a contiguous (n_loops, n_samples) array per field (the native callback writes them so)
+        self._rec_block = np.empty((len(_SCALARS), n_loops, n_samples))
+        self._rec_scalars = dict(zip(_SCALARS, self._rec_block))
         self._pos = np.empty((n_samples, n_body, 3))
         self._quat = np.empty((n_samples, n_body, 4))
         recs = [{"t": self._rec_t, "z": self._rec_z[i], **{f: a[i] for f, a in self._rec_scalars.items()}}
@@ -443,19 +488,22 @@ class Simulation:
 
     def _sample(self, m, d) -> None:
         """One control sample, the per-sample pipeline: read z -> each loop's law -> u -> inject, record.
-        A stage acting on z (sensor, observer) or on u (actuator) goes between two of these steps."""
+        A stage acting on z (sensor, observer) or on u (actuator) goes between two of these steps.
+        It reuses what :meth:`_python_batch` prepared, so that it allocates little beyond what the laws
+        and the plant's sense and true_chain do (benchmarks/law_costs.py, column "x hand")."""
         row = self._row + 1
-        t = self._t[row]
         z = self._read_z(d, row)
-        zmax = float(np.abs(z).max())  # the method: np.max's dispatch costs as much as the maximum here
-        if not zmax <= self.divergence_limit:  # also catches NaN
-            self._stop(d, f"diverged at t = {t:.6g} s: max |z| = {zmax:.3g} is beyond the divergence "
+        # max |z| <= limit, NaN failing it; on a few floats, Python's abs and compare beat np.abs(z).max()
+        if not all(map(self.divergence_limit.__ge__, map(abs, self._z_flat.tolist()))):
+            zmax = float(np.abs(z).max())
+            self._stop(d, f"diverged at t = {self._t[row]:.6g} s: max |z| = {zmax:.3g} is beyond the divergence "
                           f"limit {self.divergence_limit:g}")
             return
-        z_law = self._sense(d, z, row)
-        if not self._control_laws(d, z, row, t, z_law):
+        z_law = self._sense(d, z, row) if self._staged else z
+        if not self._control_laws(d, z, row, z_law):
             return
-        self._actuate(d, row)
+        if self._staged:
+            self._actuate(d, row)
         self._inject(m, d, row)
 
     def _read_z(self, d, row: int) -> np.ndarray:
@@ -463,17 +511,13 @@ class Simulation:
         tracked reference: z_i = q^(i-1) - ref^(i-1)(t) at this sample)."""
         z = self._z
         self.plant.sense(d, z)
-        if self._R is not None:
-            z -= self._R[row, :, :-1]
-        else:
-            z[:, 0] -= self.refs
+        if not self._ref_zero:
+            np.subtract(z, self._z_ref if self._R is None else self._R[row, :, :-1], out=z)
         return z
 
     def _sense(self, d, z, row: int) -> np.ndarray:
-        """What the laws see: z itself, or for a loop with stages its sensor's reading through its
-        observer (loop_stages.LoopStages.measure; z_measured and z_hat recorded)."""
-        if not self._staged:
-            return z
+        """What the laws see (a simulation with stages): z itself, or for a loop with stages its sensor's
+        reading through its observer (loop_stages.LoopStages.measure; z_measured and z_hat recorded)."""
         z_law, k, ud = z.copy(), self._k0 + row, d.userdata
         for i, (st, sl, rec) in enumerate(zip(self.stages, self.stage_slices, self._rec)):
             if st is not None:
@@ -482,40 +526,40 @@ class Simulation:
                 rec["z_hat"][row] = z_law[i]
         return z_law
 
-    def _control_laws(self, d, z, row: int, t: float, z_law) -> bool:
+    def _control_laws(self, d, z, row: int, z_law) -> bool:
         """Evaluate every loop's law at z_law (what it sees), record its outputs with the true z,
         advance its state; u -> self._u. False (and the run stopped) when a control is not finite."""
-        s, ud = self._s, d.userdata
-        self._rec_t[row] = t  # every loop's t and z records are rows of these (a sample is kept when _inject ends)
-        self._rec_z[:, row] = z
-        for i, (law, L, rec, sl, stateful) in enumerate(zip(self.laws, self.loops, self._rec, self.state_slices,
-                                                             self._stateful)):
-            state = ud[sl]
-            out = law.evaluate(z_law[i], state)
-            if L.disturbance.state_dependent:  # worst case: held over the period with this sample's dV1/dz_r
+        self._rec_z_rows[row] = z  # every loop's z record is a row of it (a sample is kept when _inject ends)
+        rows = self._z_rows if z_law is z else z_law
+        for i, law, L, state_dependent, state, stateful, recs in self._py_loops:
+            out = law.evaluate(rows[i], state)
+            if state_dependent:  # worst case: held over the period with this sample's dV1/dz_r
+                s, t = self._s, self._t[row]
                 value = float(L.disturbance(t, out.dV1_dzr))
                 self._inj[s:s + self.N, i] = value
                 self._force[s:s + self.N, i] = value * self._force_factor[i]
+                self._force_f[s * len(self.loops) + i] = float(self._force[s, i])
             u = float(out.u)
-            if not np.isfinite(u):
-                self._stop(d, f"diverged at t = {t:.6g} s: the control of loop {L.name!r} is {u}")
+            if not math.isfinite(u):
+                self._stop(d, f"diverged at t = {self._t[row]:.6g} s: the control of loop {L.name!r} is {u}")
                 return False
-            self._u[i] = u
-            rec["u"][row] = u
-            rec["u0"][row] = out.u0
-            rec["V1"][row] = out.V1
-            rec["dV1_dzr"][row] = out.dV1_dzr
-            rec["phi_hat"][row] = out.phi_hat  # the law's (robust: phibar / gamma_m), as the ideal chain logs it
-            rec["gamma_hat"][row] = out.gamma_hat
+            self._u[i] = self._u_f[i] = u
+            # phi_hat: the law's (robust: phibar / gamma_m), as the ideal chain logs it
+            rec_u, rec_u0, rec_V1, rec_dV1, rec_phi_hat, rec_gamma_hat = recs
+            rec_u[row] = u
+            rec_u0[row] = out.u0
+            rec_V1[row] = out.V1
+            rec_dV1[row] = out.dV1_dzr
+            rec_phi_hat[row] = out.phi_hat
+            rec_gamma_hat[row] = out.gamma_hat
             if stateful:
-                ud[sl] = law.advance(z_law[i], state, out, self.period)
+                state[:] = law.advance(rows[i], state, out, self.period)
         return True
 
     def _actuate(self, d, row: int) -> None:
-        """What the plant receives over the period: u held, or for a loop with an actuator model its
-        output at each physics step (loop_stages.LoopStages.actuate; u_applied recorded)."""
-        if not self._staged:
-            return
+        """What the plant receives over the period (a simulation with stages): u held, or for a loop with
+        an actuator model its output at each physics step (loop_stages.LoopStages.actuate; u_applied
+        recorded)."""
         k, ud = self._k0 + row, d.userdata
         self._u_applied[:] = self._u
         self._u_steps[:] = self._u
@@ -527,23 +571,36 @@ class Simulation:
     def _inject(self, m, d, row: int) -> None:
         """Write the held control (ctrl = gain u) and the disturbance force; record the true phi,
         gamma and the body poses of this sample."""
-        s = self._s
+        s, N = self._s, self.N
         u, u_steps = (self._u_applied, self._u_steps) if self._staged else (self._u, self._u)
-        self._ctrl[s:s + self.N] = self._gain[s:s + self.N] * u_steps  # held u times each step's gain
-        d.ctrl[self._act] = self._ctrl[s]
+        at = s * len(self._u_f)  # step s in the flat lists
+        if N == 1 and not self._staged:  # the sample's step only: ctrl = gain u, float by float
+            d_ctrl, gain_f, u_f = self._d_ctrl, self._gain_f, self._u_f
+            for i, a in self._act_f:
+                d_ctrl[a] = gain_f[at + i] * u_f[i]
+        else:  # held u times each step's gain; _step_batch writes the other steps' ctrl
+            ctrl = self._ctrl[s:s + N]
+            np.multiply(self._gain[s:s + N], u_steps, out=ctrl)
+            self._d_ctrl[self._act] = ctrl[0]
         if not self.plant.integrating:
-            d.qfrc_applied[self._dof] = self._force[s]
+            d_qfrc, force_f = self._d_qfrc, self._force_f
+            for i, f in self._dof_f:
+                d_qfrc[f] = force_f[at + i]
+        gain = self._gain[s]
         if self._clamped:  # what MuJoCo's actuator applies (its ctrlrange, forcerange): the phi of the chain
-            u = self.plant.applied(u, self._gain[s])  # is the rest of q^(r) (h (phi + gamma u_applied) per period)
+            u = self.plant.applied(u, gain)  # is the rest of q^(r) (h (phi + gamma u_applied) per period)
             for i in self._clamped:
                 self._rec[i]["u_applied"][row] = u[i]
-        phi, gamma = self.plant.true_chain(m, d, u, self._gain[s], self._inj[s])
+        phi, gamma = self.plant.true_chain(m, d, u, gain, self._inj[s])
         if self._R is not None:  # the error chain's: z_r' = q^(r) - ref^(r)
             phi = phi - self._R[row, :, -1]
-        self._rec_scalars["phi"][:, row] = phi  # every loop's at once (each loop's record is a row of it)
-        self._rec_scalars["gamma"][:, row] = gamma
-        self._pos[row] = d.xpos[self._body_ids]
-        self._quat[row] = d.xquat[self._body_ids]
+        self._rec_phi[:, row] = phi  # every loop's at once
+        self._rec_gamma[:, row] = gamma
+        if self._body_rows is None:
+            self._d_xpos.take(self._body_ids, axis=0, out=self._pos[row])
+            self._d_xquat.take(self._body_ids, axis=0, out=self._quat[row])
+        else:
+            self._pos[row], self._quat[row] = self._body_rows
         self._row = row
 
     def _stop(self, d, reason: str) -> None:
