@@ -843,7 +843,8 @@ class _LoopStream:
         self.settle.update(self.n, t, V1)
         self.settle_z1.update(self.n, t, np.abs(z[:, 0]))
         self.abs_sum.update(np.abs(u))
-        self.sq_sum.update(u * u)
+        with np.errstate(over="ignore"):  # |u| > 1e154 (a diverging run): the effort is inf, said by its value
+            self.sq_sum.update(u * u)
         self.u_max = _nan_max(self.u_max, np.max(np.abs(u)))
         self.phi_hat_max = _nan_max(self.phi_hat_max, np.max(a["phi_hat"]))
         if self.assumed is not None and "phi" in a:  # a stream without the true phi, gamma has nothing to check
