@@ -44,7 +44,7 @@ from ftstab_mj.plants.base import PLANTS, Plant, register_plant
 for _module in pkgutil.iter_modules(__path__):  # every plant module registers its models
     importlib.import_module(f"{__name__}.{_module.name}")
 
-from ftstab_mj.plants.user import UserPlant  # noqa: E402 (imported above with the others)
+from ftstab_mj.plants.user import make_user_plant  # noqa: E402 (imported above with the others)
 
 MODELS = tuple(PLANTS)  # the models registered by this package's modules
 
@@ -53,7 +53,7 @@ def make_plant(model: str, params: dict | None = None) -> Plant:
     """Build the registered plant ``model`` with ``params`` (defaults for missing keys)."""
     params = {} if params is None else params
     if model not in PLANTS and isinstance(model, str) and model.endswith(".xml"):
-        return UserPlant(model, params)
+        return make_user_plant(model, params)
     if model not in PLANTS:
         raise ParameterError("model", "one of " + ", ".join(PLANTS) + " or the path of an MJCF file (.xml)", model)
     return PLANTS[model].build(model, params)
