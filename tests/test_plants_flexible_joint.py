@@ -1,6 +1,8 @@
 """The flexible joint: its relative degree and gamma measured on MuJoCo's own dynamics, z read exactly,
 phi's bound guaranteed over the workspace, and the chain identity z_r' = phi + gamma u in a run."""
 
+import json
+
 import mujoco
 import numpy as np
 import pytest
@@ -244,7 +246,8 @@ def test_a_user_series_elastic_joint_runs_the_r4_law_with_its_chain_identity(tmp
     """0.3 s of the robust law (designed r = 4 gains, phibar computed over the workspace) on the user's
     model: z of 4 components logged, the increment of z_4 per period equals h (phi + gamma u) (95th
     percentile relative residual < 1e-3; measured 2.1e-4: phi drifts within the Euler step by about
-    h/2 |phi'| = 0.4 against |z_4'| ~ 2000 on this stiff joint; the issue asks < 5 %)."""
+    h/2 |phi'| = 0.4 against |z_4'| ~ 2000 on this stiff joint; the issue asks < 5 %), and the log
+    re-runs to the same samples without the model's file (replay --verify)."""
     import ftstab_mj
 
     (tmp_path / "sea.xml").write_text(SEA)
@@ -253,12 +256,17 @@ def test_a_user_series_elastic_joint_runs_the_r4_law_with_its_chain_identity(tmp
            "loops": {"elbow": {"z0": [-0.1, 0.0, 0.0, 0.0], "ref": 0.2, "controller": {
                "law": "robust", "k": -0.05, "gains": [0.82723, 1.5168, 3.1113, 100.0],
                "phibar": "computed", "gamma_m": "computed"}}}}
-    res = ftstab_mj.run(ftstab_mj.scenario_from_dict(raw, base_dir=tmp_path))
+    res = ftstab_mj.run(ftstab_mj.scenario_from_dict(raw, base_dir=tmp_path), out=tmp_path / "o")
     s, h = res.samples["elbow"], 0.0002
     assert s["z"].shape[1] == 4 and res.status == "completed"
     inc = np.diff(s["z"][:, 3]) / h
     pred = (s["phi"] + s["gamma"] * s["u"])[:-1]
     assert np.percentile(np.abs(inc - pred) / np.abs(pred), 95) < 1e-3
+    (tmp_path / "sea.xml").unlink()  # the log holds the model: replay --verify re-runs it without the file
+    from conftest import run_cli
+
+    out = run_cli("replay", "--verify", res.logs["mcap"])
+    assert out.returncode == 0, out.stdout[-2000:] + out.stderr
 
 
 @pytest.mark.parametrize("edit, says", [
@@ -287,3 +295,53 @@ def test_a_spring_loop_that_is_not_a_chain_is_refused_in_one_line(tmp_path, edit
         'law = "robust"\nk = -0.05\ngains = [0.82723, 1.5168, 3.1113, 100.0]\nphibar = 1.0\ngamma_m = 1.0\n')
     res = run_cli("run", tmp_path / "sea.toml", "--out", tmp_path / "o")
     assert res.returncode == 2 and res.stderr.count("\n") == 1 and says in res.stderr, res.stderr
+
+
+MC_FILE = "scenarios/montecarlo/flexible_joint_r4.toml"
+MC_ROWS = "tests/data/flexible_joint_montecarlo.parquet"  # benchmarks/flexible_joint_montecarlo.py --save
+
+
+def test_theorem1_monte_carlo_on_the_flexible_joint_small_version(tmp_path):
+    """The shipped Monte Carlo file on 6 states of its box (the long study: benchmarks/): every run
+    stays where the computed bounds hold, settles, and before its T(z0) (measured ratios <= 0.035)."""
+    from conftest import ROOT, run_cli
+
+    res = run_cli("montecarlo", ROOT / MC_FILE, "--on", "plant", "--states", "6", "--box", "0.2,0.3,0.3,0.3",
+                  "--workers", "2", "--json", "--out", tmp_path / "mc")
+    assert res.returncode == 0, res.stderr
+    s = json.loads(res.stdout)
+    assert s["states"] == s["settled"] == s["with_bound"] == 6 and s["bound_applies"] is True
+    assert s["violations"] == 0 and s["ratio"]["max"] <= 1.0
+
+
+def mc_results_text(rows) -> str:
+    """The sentence of docs/flexible-joint.md that states the committed Monte Carlo's results."""
+    from ftstab_mj.studies import montecarlo as mc
+
+    applies = sum(bool(r["bound_applies"]) for r in rows)
+    s = mc.summarize(rows, applies == len(rows))
+    q = s["ratio"]
+    return (f"{s['states']} initial states: {s['settled']} settled, the bound applies in {applies}, "
+            f"{s['violations']} beyond their T(z0); settle time / T(z0): min {q['min']:.3g}, median "
+            f"{q['median']:.3g}, p99 {q['p99']:.3g}, max {q['max']:.3g} (T(z0) from "
+            f"{min(r['time_bound'] for r in rows):.3g} to {max(r['time_bound'] for r in rows):.3g} s, "
+            f"settle times up to {max(r['settle_time'] for r in rows):.3g} s)")
+
+
+def test_the_flexible_joint_page_states_the_committed_monte_carlo_and_draws_its_figure(tmp_path):
+    """docs/flexible-joint.md's numbers are the summary of the committed rows, and its figure is
+    what `ftstab montecarlo` draws from them (re-drawn here, pixel by pixel within 1 % of the pixels)."""
+    import matplotlib.image as mpimg
+    import pyarrow.parquet as pq
+    from conftest import ROOT
+
+    from ftstab_mj.studies import montecarlo as mc
+
+    rows = pq.read_table(ROOT / MC_ROWS).to_pylist()
+    page = (ROOT / "docs" / "flexible-joint.md").read_text()
+    assert mc_results_text(rows) in page
+    applies = all(r["bound_applies"] for r in rows)
+    mc.figure(rows, mc.summarize(rows, applies), "flexible_joint_r4_montecarlo: settle time / T(z0)",
+              tmp_path / "f.png")
+    a, b = mpimg.imread(tmp_path / "f.png"), mpimg.imread(ROOT / "docs" / "assets" / "flexible_joint_montecarlo.png")
+    assert a.shape == b.shape and np.mean(np.any(np.abs(a - b) > 0.1, axis=-1)) < 0.01
