@@ -315,17 +315,20 @@ def test_theorem1_monte_carlo_on_the_flexible_joint_small_version(tmp_path):
 
 
 def mc_results_text(rows) -> str:
-    """The sentence of docs/flexible-joint.md that states the committed Monte Carlo's results."""
+    """The sentence of docs/flexible-joint.md that states the committed Monte Carlo's results: the
+    distribution over the states whose run stayed where the bounds hold (bound_applies), and the rest."""
     from ftstab_mj.studies import montecarlo as mc
 
-    applies = sum(bool(r["bound_applies"]) for r in rows)
-    s = mc.summarize(rows, applies == len(rows))
+    inside = [r for r in rows if r["bound_applies"]]
+    out = [r for r in rows if not r["bound_applies"]]
+    s = mc.summarize(inside, True)
     q = s["ratio"]
-    return (f"{s['states']} initial states: {s['settled']} settled, the bound applies in {applies}, "
-            f"{s['violations']} beyond their T(z0); settle time / T(z0): min {q['min']:.3g}, median "
-            f"{q['median']:.3g}, p99 {q['p99']:.3g}, max {q['max']:.3g} (T(z0) from "
-            f"{min(r['time_bound'] for r in rows):.3g} to {max(r['time_bound'] for r in rows):.3g} s, "
-            f"settle times up to {max(r['settle_time'] for r in rows):.3g} s)")
+    return (f"{len(rows)} initial states, all settled: {len(inside)} stayed in the workspace of the bounds, "
+            f"{s['violations']} of them beyond their T(z0); settle time / T(z0) min {q['min']:.3g}, median "
+            f"{q['median']:.3g}, p99 {q['p99']:.3g}, max {q['max']:.3g} (T(z0) {min(r['time_bound'] for r in rows):.3g} "
+            f"to {max(r['time_bound'] for r in rows):.3g} s, settle times up to "
+            f"{max(r['settle_time'] for r in rows):.3g} s); {len(out)} left the workspace (max ratio "
+            f"{max((r['ratio'] for r in out), default=float('nan')):.3g}), where the bound is not claimed")
 
 
 def test_the_flexible_joint_page_states_the_committed_monte_carlo_and_draws_its_figure(tmp_path):
@@ -339,7 +342,8 @@ def test_the_flexible_joint_page_states_the_committed_monte_carlo_and_draws_its_
 
     rows = pq.read_table(ROOT / MC_ROWS).to_pylist()
     page = (ROOT / "docs" / "flexible-joint.md").read_text()
-    assert mc_results_text(rows) in page
+    assert all(np.isfinite(r["settle_time"]) for r in rows)  # "all settled"
+    assert mc_results_text(rows) in " ".join(page.split())
     applies = all(r["bound_applies"] for r in rows)
     mc.figure(rows, mc.summarize(rows, applies), "flexible_joint_r4_montecarlo: settle time / T(z0)",
               tmp_path / "f.png")
