@@ -16,6 +16,9 @@ Scenario keys (the loader resolves the path relative to the scenario file)::
     qd_max = 2.0                    # rad/s or m/s
     qdd_max = 5.0                   # rad/s^2 or m/s^2 (r = 3)
 
+A loop whose actuator drives another hinge coupled to the loop's joint by a fixed tendon with
+stiffness is a flexible joint (r = 4, 5 integrating: :func:`flexible_plant`, plants/flexible_joint.py;
+its workspace adds qddd_max, and qdddd_max at r = 5, and ``grid`` is the cells per axis of its bound).
 The chain map and the refusals are plants/chain.py's. Contacts, joint limits, equality constraints,
 tendon limits and free or ball joints are simulated (their forces are part of the recorded phi and
 gamma) and said in a note (plant.notes), never refused; they make the computed bounds infinite.
