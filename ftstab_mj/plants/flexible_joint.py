@@ -23,6 +23,10 @@ q', theta', act, tau_d) by the model's equations above and their exact time deri
 (q'' against qacc; q''', q'''' and d q''''/du against trajectories integrated by MuJoCo). The
 controller sees this exact z; a real joint would need a differentiator or an observer for it.
 
+A user's MJCF of this form (a loop whose actuator reaches its joint through a spring tendon) is this
+plant too (:meth:`FlexibleJointPlant.from_model`, built by plants/user.py): the same equations, its
+own joint, actuator and tendon names, checked against MuJoCo's accelerations when it is built.
+
 The disturbance is injected on the rotor, matched with the control: a torque tau_d = (J_m M_l / K)
 phi_inj adds phi_inj to q'''' (r = 4); for r = 5 the injected torque's rate is that (tau_d(0) = 0).
 
