@@ -8,7 +8,8 @@ batch engine) for --states initial states uniform in |z0| <= (0.2, 0.3, 0.3, 0.3
 and prints the distribution of settle time / T(z0), the states where the bound applies, those beyond
 it, and the CPU seconds per state. --save writes the rows (parquet) that the docs' figure and
 tests/test_montecarlo.py's check of the page's numbers read (tests/data/flexible_joint_montecarlo.parquet).
-About 1 CPU-second per state (5 s simulated at 1 ms): 1,000 states are a quarter of an hour on 2 free cores.
+About 0.75 CPU-second per state (5 s simulated at 1 ms): 1,000 states are some 6 minutes on 2 free
+cores (27 minutes on a shared, loaded machine, --engine processes, for the committed rows).
 """
 
 import argparse
