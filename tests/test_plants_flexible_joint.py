@@ -289,6 +289,8 @@ def test_a_spring_loop_that_is_not_a_chain_is_refused_in_one_line(tmp_path, edit
     with pytest.raises(ParameterError) as err:
         make_plant(str(tmp_path / "sea.xml"), SEA_LOOP)
     assert "\n" not in str(err.value) and says in str(err.value), str(err.value)
+    if says != "coupled":
+        return  # the command line's refusal: once
     (tmp_path / "sea.toml").write_text(
         'name = "sea"\ndescription = "d"\n[sim]\nduration = 0.1\n[plant]\nmodel = "sea.xml"\n[plant.loops.elbow]\njoint = "elbow"\n'
         'actuator = "drive_motor"\n[loops.elbow]\nz0 = [0.1, 0.0, 0.0, 0.0]\n[loops.elbow.controller]\n'
