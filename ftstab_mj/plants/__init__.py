@@ -15,13 +15,14 @@ then know it. Registered models (files in models/):
   "arm_integrating"   r = 3, the same arm, its motors integrate the control (torque rate)
   "arm3"              r = 2, loops "joint0".."joint2": three stacked hinge joints
   "ideal_chain"       r = params.r (1..6), one loop "chain": the ideal chain z_r' = phi + gamma u,
-                      integrated exactly by the plant (plants/ideal.py: no MuJoCo mechanism has it)
+                      integrated exactly by the plant (plants/ideal.py: phi, gamma chosen freely)
   "flexible_joint"    r = 4 (r = 5 with params.integrating), one loop "link": a link under gravity
                       driven through a spring by a motor rotor; z is the link's, read from the state
                       (params: inertias, link mass and centre of mass, stiffness, gear, damping; the
                       workspace of the guaranteed bounds: q_min, q_max, qd_max, qdd_max, ..., u_max)
 A model that is the path of an MJCF file ("robot.xml") is a user model (plants/user.py): its
-loops, joints and actuators come from params["loops"].
+loops, joints and actuators come from params["loops"]; r = 2 or 3, or 4 and 5 when the loop's
+actuator reaches its joint through a spring (a flexible joint: plants/flexible_joint.py).
 
 Signal units differ: the carts take phi and gamma in chain units, the arm takes phi as an injected
 joint torque (N m) and gamma as a motor gain factor (plant.phi_units / plant.gamma_units say it).
@@ -44,7 +45,7 @@ from ftstab_mj.plants.base import PLANTS, Plant, register_plant
 for _module in pkgutil.iter_modules(__path__):  # every plant module registers its models
     importlib.import_module(f"{__name__}.{_module.name}")
 
-from ftstab_mj.plants.user import UserPlant  # noqa: E402 (imported above with the others)
+from ftstab_mj.plants.user import make_user_plant  # noqa: E402 (imported above with the others)
 
 MODELS = tuple(PLANTS)  # the models registered by this package's modules
 
@@ -53,7 +54,7 @@ def make_plant(model: str, params: dict | None = None) -> Plant:
     """Build the registered plant ``model`` with ``params`` (defaults for missing keys)."""
     params = {} if params is None else params
     if model not in PLANTS and isinstance(model, str) and model.endswith(".xml"):
-        return UserPlant(model, params)
+        return make_user_plant(model, params)
     if model not in PLANTS:
         raise ParameterError("model", "one of " + ", ".join(PLANTS) + " or the path of an MJCF file (.xml)", model)
     return PLANTS[model].build(model, params)

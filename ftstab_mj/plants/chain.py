@@ -104,7 +104,7 @@ def check_model(m: mujoco.MjModel, loops, key: str = "params.loops", constraints
         if m.actuator_trntype[a] != mujoco.mjtTrn.mjTRN_JOINT or m.actuator_trnid[a, 0] != j:
             target = (f"joint {_name(m, mujoco.mjtObj.mjOBJ_JOINT, int(m.actuator_trnid[a, 0]))!r}"
                       if m.actuator_trntype[a] == mujoco.mjtTrn.mjTRN_JOINT else "no joint directly (a tendon or site)")
-            spring = (_spring_between(m, j, int(m.actuator_trnid[a, 0]))
+            spring = (spring_between(m, j, int(m.actuator_trnid[a, 0]))
                       if m.actuator_trntype[a] == mujoco.mjtTrn.mjTRN_JOINT else "")
             if spring:  # a flexible joint: relative degree 4 (5 with an integrating actuator), not r = 2 or 3
                 raise _refusal(f"{p}.actuator", f"an actuator driving joint {L.joint!r} directly (a user model's "
@@ -208,7 +208,7 @@ def beyond_chain(m: mujoco.MjModel, joint_ranges: dict | None = None) -> tuple[l
     return items, refusals
 
 
-def _spring_between(m, j1: int, j2: int) -> str:
+def spring_between(m, j1: int, j2: int) -> str:
     """The name of a fixed tendon with stiffness > 0 whose joints include j1 and j2 (a spring coupling
     them), "" when there is none."""
     for t in range(m.ntendon):

@@ -23,6 +23,10 @@ q', theta', act, tau_d) by the model's equations above and their exact time deri
 (q'' against qacc; q''', q'''' and d q''''/du against trajectories integrated by MuJoCo). The
 controller sees this exact z; a real joint would need a differentiator or an observer for it.
 
+A user's MJCF of this form (a loop whose actuator reaches its joint through a spring tendon) is this
+plant too (:meth:`FlexibleJointPlant.from_model`, built by plants/user.py): the same equations, its
+own joint, actuator and tendon names, checked against MuJoCo's accelerations when it is built.
+
 The disturbance is injected on the rotor, matched with the control: a torque tau_d = (J_m M_l / K)
 phi_inj adds phi_inj to q'''' (r = 4); for r = 5 the injected torque's rate is that (tau_d(0) = 0).
 
@@ -64,6 +68,7 @@ DEFAULTS = {
     "u_max": None, "cells": 200,  # u_max: 5 N m (r = 4), 60 N m/s (r = 5); phi does not depend on u (one loop)
 }
 MAX_CELLS = 2000
+SHIPPED = {"link": "link", "motor": "motor", "actuator": "motor", "spring": "spring"}  # names in the file
 
 
 # -- the model's equations, on floats or on intervals ----------------------------------------------
@@ -226,45 +231,94 @@ class FlexibleJointPlant(Plant):
         actuator.gear = [p["gear"], 0, 0, 0, 0, 0]
         if integrating:  # act' = ctrl (the torque rate), torque = gear x act
             actuator.dyntype = mujoco.mjtDyn.mjDYN_INTEGRATOR
-        super().__init__(spec)
+        self._setup(spec, model_name, {"integrating": integrating, **p, "cells": cells}, "link", SHIPPED)
+
+    def _setup(self, spec, model_name: str, params: dict, loop: str, names: dict, key: str = "params") -> None:
+        """Attributes from the (edited) spec whose joints, actuator and spring tendon ``names`` gives
+        ({"link", "motor", "actuator", "spring"}); ``params`` holds integrating, cells and the workspace
+        (q_min, ..., u_max; q_min None: no bounds); ``key`` names the structure in a refusal."""
+        Plant.__init__(self, spec)
         self.model_name = model_name
-        self.params = {"integrating": integrating, **p, "cells": cells}
-        self.integrating = integrating
+        self.params = self.ws = params  # ws: the workspace of the bounds (from_model: params are the user's)
+        self.integrating = integrating = params["integrating"]
         self.r = 5 if integrating else 4
-        self.loop_names = ("link",)
-        self.body_names = ("rotor", "link")
-        self.cells = cells
-        self.k = self.constants()
+        self.loop_names = (loop,)
+        self.names = names
+        self.cells = params["cells"]
+        self.k = self.constants(key)
+        m = self.compile(0.001)[0]
+        self.body_names = tuple(mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_BODY, b) or f"#{b}" for b in range(1, m.nbody))
         K, M, J, b = self.k["K"], self.k["M"], self.k["J"], self.k["b"]
         self.gamma_nominal = K * b / (J * M)  # chain gamma per unit gain factor: d z_r' / d u
         self.dist_scale = np.array([J * M / K])  # rotor torque (N m; r = 5: N m/s) per unit of phi_inj
         self.dof_ids = np.array([self._motor_dof], dtype=np.int32)  # phi is injected on the rotor (matched)
-        self.actuator_ids = np.array([0], dtype=np.int32)
+        self.actuator_ids = np.array([self._actuator], dtype=np.int32)
         units = "rad/s^5" if integrating else "rad/s^4"
         self.phi_units = f"{units} (chain units: the link's z_{self.r}' = phi + gamma u; injected on the rotor)"
         self.gamma_units = (f"{units} per unit u (chain gamma = gain factor x K gear / (J_m M_l) = factor x "
                             f"{self.gamma_nominal:.6g}; u is the motor torque{' rate' if integrating else ''})")
         self._bound_cache = {}
 
-    def constants(self) -> dict:
+    @classmethod
+    def from_model(cls, spec, path: str, params: dict, loop: str, names: dict, workspace: dict, key: str):
+        """The plant of a user's model (plants/user.py): ``spec`` its MjSpec, ``params`` the user's
+        (recorded, so that the same call rebuilds it), ``names`` as in :meth:`_setup`, ``workspace``
+        integrating, cells, q_min, ..., u_max (q_min None: no bounds)."""
+        plant = cls.__new__(cls)
+        plant._setup(spec, path, workspace, loop, names, key)
+        plant.params = params
+        return plant
+
+    def constants(self, key: str = "params") -> dict:
         """c, K, M (= M_l), J (= J_m), dl, dm, b (= gear x gain) read from the compiled model, which is
-        checked to be this mechanism: two hinges with a constant diagonal mass matrix, coupled only
-        by the spring."""
+        checked to be this mechanism (else ParameterError naming ``key``): two hinges with a constant
+        diagonal mass matrix, coupled only by the spring, whose accelerations at random states and
+        controls are the module docstring's equations, so that d q''/du = d q'''/du = 0 and
+        d q''''/du = K b / (J_m M_l) > 0: a chain of r = 4 (5 integrating)."""
         m, d, _ = self.compile(0.001)
-        self._link_dof = int(m.jnt_dofadr[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, "link")])
-        self._motor_dof = int(m.jnt_dofadr[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, "motor")])
+        jid = {name: mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, self.names[name]) for name in ("link", "motor")}
+        self._link_dof, self._motor_dof = (int(m.jnt_dofadr[jid[name]]) for name in ("link", "motor"))
+        self._actuator = a = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_ACTUATOR, self.names["actuator"])
+        spring = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_TENDON, self.names["spring"])
         L, R = self._link_dof, self._motor_dof
+        expected = ("a flexible joint (r = 4): a rotor hinge and a link hinge coupled only by a spring, "
+                    "M_l q'' = -c sin q - K (q - theta) - d_l q', J_m theta'' = gear u - K (theta - q) - d_m theta'")
+        if m.nv != 2 or m.nu != 1:
+            raise ParameterError(key, expected, f"a model of {m.nv} degrees of freedom and {m.nu} actuators")
         d.qpos[:] = 0.0
         d.qvel[:] = 0.0
         d.qpos[L] = np.pi / 2  # the gravity torque's amplitude: qfrc_bias = c sin q at rest
         mujoco.mj_forward(m, d)
         M = np.empty((m.nv, m.nv))
         mujoco.mj_fullM(m, d, M)
-        if m.nv != 2 or M[L, R] != 0.0 or M[R, L] != 0.0:
-            raise ParameterError("params", "a flexible joint whose rotor and link inertias are not coupled", M.tolist())
-        return {"c": float(d.qfrc_bias[L]), "K": float(m.tendon_stiffness[0]), "M": float(M[L, L]),
-                "J": float(M[R, R]), "dl": float(m.dof_damping[L]), "dm": float(m.dof_damping[R]),
-                "b": float(m.actuator_gainprm[0, 0] * m.actuator_gear[0, 0])}
+        if M[L, R] != 0.0 or M[R, L] != 0.0:
+            raise ParameterError(key, expected, f"rotor and link inertias coupled (M_12 = {M[L, R]:.6g} kg m^2)")
+        k = {"c": float(d.qfrc_bias[L]), "K": float(m.tendon_stiffness[spring]), "M": float(M[L, L]),
+             "J": float(M[R, R]), "dl": float(m.dof_damping[L]), "dm": float(m.dof_damping[R]),
+             "b": float(m.actuator_gainprm[a, 0] * m.actuator_gear[a, 0])}
+        if not (k["K"] > 0 and k["b"] > 0):
+            raise ParameterError(key, expected, f"K = {k['K']:.6g} N m/rad, gear x gain = {k['b']:.6g} (both > 0)")
+        # MuJoCo's accelerations against the equations at a few states and torques drawn once (a
+        # user's model: the spring's coefficients, gravity's zero angle, stray forces would show here)
+        rng = np.random.default_rng(0)
+        for _ in range(8):
+            d.qpos[L], d.qpos[R], d.qvel[L], d.qvel[R] = rng.uniform(-2.0, 2.0, 4)
+            tau = float(rng.uniform(-1.0, 1.0))
+            d.ctrl[:] = 0.0
+            if self.integrating:
+                d.act[0] = tau
+            else:
+                d.ctrl[a] = tau
+            mujoco.mj_forward(m, d)
+            q, th, v, w = d.qpos[L], d.qpos[R], d.qvel[L], d.qvel[R]
+            acc = link_derivatives(k, q, th, v, w, k["b"] * tau, n=3)[2]
+            th2 = (k["b"] * tau - k["K"] * (th - q) - k["dm"] * w) / k["J"]
+            scale = abs(k["c"]) + 4.0 * k["K"] + k["b"] + 2.0 * (k["dl"] + k["dm"])  # the forces' size here
+            err = max(abs(d.qacc[L] - acc) * k["M"], abs(d.qacc[R] - th2) * k["J"]) / scale
+            if not err <= 1e-9:
+                raise ParameterError(key, expected, f"MuJoCo's torques off these equations by {err:.2g} (relative) "
+                                     f"at q = {q:.3g}, theta = {th:.3g} rad")
+        return k
 
     # -- the state ---------------------------------------------------------------------------------
     def derivatives(self, m, d, control: float = 0.0, taud_rate: float = 0.0, n: int | None = None):
@@ -312,7 +366,7 @@ class FlexibleJointPlant(Plant):
 
     def workspace_box(self):
         """The workspace as the box of z (absolute q): [(lo, hi)] * r."""
-        p = self.params
+        p = self.ws
         box = [(p["q_min"], p["q_max"]), (-p["qd_max"], p["qd_max"]), (-p["qdd_max"], p["qdd_max"]),
                (-p["qddd_max"], p["qddd_max"]), (-p["qdddd_max"], p["qdddd_max"])]
         return box[:self.r]
@@ -320,6 +374,8 @@ class FlexibleJointPlant(Plant):
     def phi_state_bound(self) -> float:
         """sup |phi_of_z| over the workspace, guaranteed: interval enclosures on cells x cells cells of
         the (q, q') rectangle, the other entries whole (module docstring); cached."""
+        if self.ws["q_min"] is None:  # a user's model without a workspace
+            return np.inf
         if "state" not in self._bound_cache:
             box, n = self.workspace_box(), self.cells
             (q0, q1), (v0, v1) = box[0], box[1]
@@ -343,8 +399,20 @@ class FlexibleJointPlant(Plant):
         phibar = (self.phi_state_bound() + max(abs(plo), abs(phi_hi))) * (1 + 1e-12)
         return np.array([phibar]), np.array([glo * self.gamma_nominal]), np.array([ghi * self.gamma_nominal])
 
+    @property
+    def unbounded_reason(self) -> str:
+        """Why the bounds are infinite: "" when a workspace is stated."""
+        if self.ws["q_min"] is not None:
+            return ""
+        need = ("q, qd_max, qdd_max" + (", qddd_max" if self._needs() >= 4 else "")
+                + (", qdddd_max" if self._needs() >= 5 else ""))
+        return (f"no workspace for the bounds: add [plant.workspace.{self.names['link']}] {need} and u_max in "
+                f"[plant.loops.{self.loop_names[0]}]")
+
     def loop_workspace(self, i: int, ref: float) -> dict | None:
-        p = self.params
+        p = self.ws
+        if p["q_min"] is None:
+            return None
         out = {"z1_min": p["q_min"] - ref, "z1_max": p["q_max"] - ref, "z2_abs_max": p["qd_max"],
                "z3_abs_max": p["qdd_max"], "u_abs_max": p["u_max"]}
         if self._needs() >= 4:

@@ -16,6 +16,9 @@ Scenario keys (the loader resolves the path relative to the scenario file)::
     qd_max = 2.0                    # rad/s or m/s
     qdd_max = 5.0                   # rad/s^2 or m/s^2 (r = 3)
 
+A loop whose actuator drives another hinge coupled to the loop's joint by a fixed tendon with
+stiffness is a flexible joint (r = 4, 5 integrating: :func:`flexible_plant`, plants/flexible_joint.py;
+its workspace adds qddd_max, and qdddd_max at r = 5, and ``grid`` is the cells per axis of its bound).
 The chain map and the refusals are plants/chain.py's. Contacts, joint limits, equality constraints,
 tendon limits and free or ball joints are simulated (their forces are part of the recorded phi and
 gamma) and said in a note (plant.notes), never refused; they make the computed bounds infinite.
@@ -232,3 +235,86 @@ class UserPlant(ChainPlant):
 
 def _name_of(m, objtype, i) -> str:
     return mujoco.mj_id2name(m, objtype, i) or f"#{i}"
+
+
+# -- a loop through a spring: the flexible joint (r = 4, 5) ----------------------------------------
+FLEX_WORKSPACE_KEYS = ("q", "qd_max", "qdd_max", "qddd_max", "qdddd_max")  # the link's, rad/s^(i-1)
+FLEX_CELLS = 200  # default cells per axis of the flexible joint's guaranteed bound (plant.grid)
+
+
+def make_user_plant(path: str, params: dict):
+    """The plant of the user's model ``path``: a FlexibleJointPlant (r = 4, 5 integrating) when a loop's
+    actuator reaches its joint through a spring (:func:`flexible_plant`), else a UserPlant (r = 2, 3)."""
+    return flexible_plant(path, params) or UserPlant(path, params)
+
+
+def flexible_plant(path: str, params: dict):
+    """A FlexibleJointPlant when a loop's actuator drives another hinge coupled to the loop's joint by
+    a fixed tendon with stiffness (plants/flexible_joint.py: its equations are checked against the
+    model's dynamics, d q''/du = d q'''/du = 0, d q''''/du > 0), None when no loop is of that form.
+    Refused (ParameterError naming the key) when such a model is not that chain: more loops, contacts,
+    limits, constraints or a ctrlrange, an ``integrating`` flag against the actuator's dynamics."""
+    from ftstab_mj.plants.chain import beyond_chain, spring_between
+    from ftstab_mj.plants.flexible_joint import FlexibleJointPlant
+
+    loops_raw = params.get("loops") if isinstance(params, dict) else None
+    if not isinstance(loops_raw, dict) or not all(isinstance(b, dict) for b in loops_raw.values()):
+        return None  # UserPlant refuses the shape
+    spec = load_model_spec(path)
+    with control_callback(None):  # compiling runs a forward pass (callback.py)
+        m = spec.copy().compile()
+    found = None
+    for name, body in loops_raw.items():
+        j = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, str(body.get("joint", "")))
+        actuator = body.get("actuator") or (_name_of(m, mujoco.mjtObj.mjOBJ_ACTUATOR, 0) if m.nu == 1 else "")
+        a = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_ACTUATOR, str(actuator))
+        if j < 0 or a < 0 or m.actuator_trntype[a] != mujoco.mjtTrn.mjTRN_JOINT or m.actuator_trnid[a, 0] == j:
+            continue
+        motor = int(m.actuator_trnid[a, 0])
+        spring = spring_between(m, j, motor)
+        if spring:
+            found = (name, body, j, motor, a, spring)
+            break
+    if found is None:
+        return None
+    name, body, j, motor, a, spring = found
+    key = f"params.loops.{name}"
+    _known(params, PLANT_KEYS, "params")
+    _known(body, LOOP_KEYS, key)
+    if len(loops_raw) != 1:
+        raise ParameterError("params.loops", f"one loop for a model whose loop {name!r} is a flexible joint (r = 4)",
+                             f"{len(loops_raw)} loops")
+    beyond, _ = beyond_chain(m)
+    if beyond or m.actuator_ctrllimited[a] or m.actuator_forcelimited[a]:
+        raise ParameterError("model", f"a flexible joint that is a chain (loop {name!r}: r = 4): two hinges and a "
+                             "spring, no contacts, limits, constraints or ctrlrange",
+                             "; ".join(beyond + (["a ctrlrange or forcerange"] if m.actuator_ctrllimited[a]
+                                                 or m.actuator_forcelimited[a] else [])))
+    integrating = _flag(body.get("integrating", False), f"{key}.integrating")
+    dyn = int(m.actuator_dyntype[a])
+    if dyn not in (int(mujoco.mjtDyn.mjDYN_NONE), int(mujoco.mjtDyn.mjDYN_INTEGRATOR)) \
+            or integrating != (dyn == int(mujoco.mjtDyn.mjDYN_INTEGRATOR)):
+        raise ParameterError(f"{key}.integrating", "true exactly when the actuator's dyntype is integrator",
+                             f"{integrating} with dyntype {mujoco.mjtDyn(dyn).name[6:].lower()}")
+    grid = params.get("grid", FLEX_CELLS)
+    if isinstance(grid, bool) or not isinstance(grid, int) or not 1 <= grid <= 2000:
+        raise ParameterError("params.grid", "an integer in [1, 2000] (cells per axis of the bounds)", grid)
+    joint = _name_of(m, mujoco.mjtObj.mjOBJ_JOINT, j)
+    ws = {"integrating": integrating, "cells": grid, **{k: None for k in ("q_min", "q_max", "qd_max", "qdd_max",
+                                                                           "qddd_max", "qdddd_max", "u_max")}}
+    ws_raw = _table(params.get("workspace", {}), "params.workspace")
+    if joint in ws_raw and "u_max" in body:
+        wkey = f"params.workspace.{joint}"
+        w = _table(ws_raw[joint], wkey)
+        _known(w, FLEX_WORKSPACE_KEYS, wkey)
+        q = w.get("q")
+        if not (isinstance(q, list) and len(q) == 2 and all(isinstance(x, (int, float)) and not isinstance(x, bool)
+                                                            and np.isfinite(x) for x in q) and q[0] < q[1]):
+            raise ParameterError(f"{wkey}.q", "[low, high] with low < high (rad)", q)
+        ws.update(q_min=float(q[0]), q_max=float(q[1]), u_max=_num(body["u_max"], f"{key}.u_max"))
+        for k in FLEX_WORKSPACE_KEYS[1:4 if not integrating else 5]:
+            ws[k] = _num(w.get(k), f"{wkey}.{k}")
+        ws["qdddd_max"] = ws["qdddd_max"] or 0.0  # r = 4: phi does not read q''''
+    names = {"link": joint, "motor": _name_of(m, mujoco.mjtObj.mjOBJ_JOINT, motor),
+             "actuator": _name_of(m, mujoco.mjtObj.mjOBJ_ACTUATOR, a), "spring": spring}
+    return FlexibleJointPlant.from_model(spec, path, params, name, names, ws, key="model")
