@@ -18,8 +18,8 @@ from ftstab_mj.simulation.run_loop import simulate
 # of records (metrics, control: the Rerun view draws Theorem 1's envelope), errors, the callback slot
 # its viewers clear while compiling a model, the package version. Above it, never: the run loop
 # (sim, native, plants), the scenario runner and loader, sweeps, the CLI.
-BELOW_LOGS = ("ftstab_mj.logs", "ftstab_mj.simulation.records", "ftstab_mj.metrics.run_metrics", "ftstab_mj.control", "ftstab_mj.config.errors",
-              "ftstab_mj.config.keypath", "ftstab_mj.config.limits",
+BELOW_LOGS = ("ftstab_mj.logs", "ftstab_mj.simulation.records", "ftstab_mj.metrics.run_metrics", "ftstab_mj.control",
+              "ftstab_mj.config",  # the bottom layer: any of it (tests/test_layers.py keeps config itself below all)
               "ftstab_mj.plants.callback")
 
 

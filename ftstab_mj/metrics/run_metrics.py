@@ -302,10 +302,27 @@ def saturated_time(u, stages: dict, period: float) -> float:
     return float(np.count_nonzero(np.abs(u) - stages["actuator"]["dead_zone"] > u_max) * period)
 
 
-# {(loop.hong, its work limit, z0 bytes): T (n,)}: a sweep's rows mostly share the law and z0, and the
-# enclosure of V1(z0) in intervals costs ~2 ms a row (of ~10 on the cart); the most recent last
-_TIME_BOUNDS: dict = {}
-TIME_BOUNDS_KEPT = 256
+# {((r, k, gains), shape, z0 bytes): V1(z0) enclosure}: a sweep's rows mostly share the law and z0, and
+# the enclosure of V1(z0) in intervals costs ~2 ms a row (of ~10 on the cart); the most recent last
+_V1_ENCLOSURES: dict = {}
+V1_ENCLOSURES_KEPT = 256
+
+
+def _V1_enclosure(hong: dict, rows):
+    """certificate.V1_enclosure of the states rows (n, r) under Hong's controller ``hong`` (its r, k,
+    gains); a run's own z0 (at most 64 numbers) is kept per controller, so the rows of a sweep that
+    share it (about 2 ms each) pay once. The certificate is applied to it afresh by the caller."""
+    from ftstab_mj.control.certificate import V1_enclosure
+
+    args = (int(hong["r"]), float(hong["k"]), tuple(float(g) for g in hong["gains"]))
+    key = (args, rows.shape, rows.tobytes()) if rows.size <= 64 else None  # not a Monte Carlo's states
+    kept = _V1_ENCLOSURES.pop(key, None) if key is not None else None
+    V = kept if kept is not None else V1_enclosure(*args, rows)
+    if key is not None:
+        _V1_ENCLOSURES[key] = V
+        while len(_V1_ENCLOSURES) > V1_ENCLOSURES_KEPT:
+            del _V1_ENCLOSURES[next(iter(_V1_ENCLOSURES))]
+    return V
 
 
 def time_bound(loop, z0):
@@ -317,23 +334,10 @@ def time_bound(loop, z0):
     z0 = np.asarray(z0, dtype=float)
     rows = np.atleast_2d(z0)
     out = np.full(len(rows), np.nan)
-    key = (repr(sorted(loop.hong.items())), int(loop.certificate_boxes), rows.shape, rows.tobytes()) \
-        if loop.hong and rows.size <= 64 else None  # a run's z0, not a Monte Carlo's states
-    kept = _TIME_BOUNDS.pop(key, None)
-    if kept is not None:
-        out[:] = kept
-    elif loop.hong and loop_certificate(loop).certified:  # else Theorem 1 says nothing
-        from ftstab_mj.control.certificate import V1_enclosure
-
-        h = loop.hong
+    if loop.hong and loop_certificate(loop).certified:  # else Theorem 1 says nothing
         ok = np.isfinite(rows).all(axis=1)
-        V = V1_enclosure(int(h["r"]), float(h["k"]), tuple(float(g) for g in h["gains"]), rows[ok])
-        out[ok] = loop_certificate(loop).time_bound(V)
+        out[ok] = loop_certificate(loop).time_bound(_V1_enclosure(loop.hong, rows[ok]))
     out[~np.isfinite(out)] = np.nan
-    if key is not None:
-        _TIME_BOUNDS[key] = out.copy()
-        while len(_TIME_BOUNDS) > TIME_BOUNDS_KEPT:
-            del _TIME_BOUNDS[next(iter(_TIME_BOUNDS))]
     return out if z0.ndim == 2 else _num_or_none(None if np.isnan(out[0]) else out[0])
 
 
