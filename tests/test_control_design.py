@@ -359,12 +359,13 @@ def test_the_designs_time_bound_is_the_guaranteed_one_a_run_reports(r, k, gains,
 @pytest.mark.parametrize("r, k, z0", [
     (1, -0.3, [[1.0]]),
     (2, -0.2, [[1.0, 0.0], [0.0, 1.0]]),
-    (3, -0.1, [[1.0, 0.0, 0.0]]),
 ])
 def test_cli_min_time_beats_the_max_c_gains_on_the_guaranteed_time(r, k, z0):
     """The min-time gains are certified (status in the output and an independent certify here), their
     guaranteed T(z0) (recomputed from c_lower) is not above that of the max-c gains (0.6 % below at
-    r = 2: 1.4392 s against 1.4482 s; r = 3 from (1, 0, 0): 9.90165 s against 9.90207 s), and their closed loop
+    r = 2: 1.4392 s against 1.4482 s; r = 3 from (1, 0, 0), 9.90165 s against 9.90207 s, costs 90 s of
+    CPU for a 0.004 % gain and is left out of the suite: the r = 3 design is checked by
+    test_designed_gains_are_certified_and_beat_the_bound and test_cli_u_max_holds_on_the_region), and their closed loop
     on the exact chain reaches V1 <= 1e-8 V1(z0) before it from every z0 (r = 1: V1 does not
     depend on the gain, so both objectives give the largest gain)."""
     z_args = [a for z in z0 for a in ("--z0", ",".join(map(str, z)))]
