@@ -193,11 +193,19 @@ class FoxgloveServer:
 
     def stop(self) -> None:
         if self._server is not None:
-            self._relay.stop()
+            # foxglove-sdk 0.30's stop drops what its per-client senders still queue (the run's last
+            # /metrics, lost 1 time in 3 on a loaded machine) and it has no flush: a client connected
+            # gets a bounded grace first. Then the server: what it sent still crosses the relay, whose
+            # connections end when the server closes them; then the relay, bounded
+            if self._relay.connected():
+                time.sleep(SEND_GRACE_S)
             self._server.stop()
+            self._relay.stop(drain=RELAY_DRAIN_S)
             self._server = None
 
 
+SEND_GRACE_S = 0.5  # s a connected client gets, at stop, to receive what the server still queues
+RELAY_DRAIN_S = 2.0  # s the relay waits, at stop, for the clients to get what the server sent last
 SDK_SUBPROTOCOL = "foxglove.sdk.v1"  # what foxglove-sdk 0.30's server accepts
 FORMER_SUBPROTOCOL = "foxglove.websocket.v1"  # the same protocol's former name, which it refuses
 _MAX_HEAD = 64 * 1024  # bytes of an HTTP request or response head (a handshake is < 1 kB)
@@ -278,12 +286,23 @@ class _SubprotocolRelay:
             sel = selectors.DefaultSelector()
             sel.register(client, selectors.EVENT_READ, upstream)
             sel.register(upstream, selectors.EVENT_READ, client)
-            while True:
+            open_sides = 2
+            while open_sides:
                 for key, _ in sel.select():
                     data = key.fileobj.recv(65536)
-                    if not data:
-                        return
-                    key.data.sendall(data)
+                    if data:
+                        key.data.sendall(data)
+                        continue
+                    # one side is done sending: pass the half-close on and keep reading the other until
+                    # it ends too. Closing both at once would reset a connection whose peer still sends
+                    # (a WebSocket close reply), and a reset drops what it had not read yet: the last
+                    # messages of the run (/metrics)
+                    sel.unregister(key.fileobj)
+                    open_sides -= 1
+                    try:
+                        key.data.shutdown(socket.SHUT_WR)
+                    except OSError:
+                        pass
         except (OSError, ValueError):  # a client gone, a malformed head, or stop closing the sockets
             return
         finally:
@@ -293,9 +312,22 @@ class _SubprotocolRelay:
                         self._open.discard(s)
                     s.close()
 
-    def stop(self) -> None:
+    def connected(self) -> bool:
+        """Whether a client connection is open."""
+        with self._lock:
+            return bool(self._open)
+
+    def stop(self, drain: float = 0.0) -> None:
+        """Close the listener and every connection; first wait up to ``drain`` s for the connections to
+        end by themselves (the upstream server closed them after its last messages)."""
         import socket
 
+        deadline = time.monotonic() + drain
+        while time.monotonic() < deadline:
+            with self._lock:
+                if not self._open:
+                    break
+            time.sleep(0.01)
         with self._lock:
             self._stopped = True
             live = list(self._open)
