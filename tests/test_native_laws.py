@@ -39,6 +39,7 @@ from ftstab_mj.scenario import LoopSpec
 from ftstab_mj.simulation import native
 from ftstab_mj.simulation.records import LOOP_FIELDS
 from ftstab_mj.simulation.run_loop import Simulation, simulate
+from test_native import random_states  # states over 10 decades, exact zeros: the paper laws' twins use the same
 
 pytestmark = pytest.mark.skipif(not native.available(), reason=f"native kernel: {native.UNAVAILABLE_REASON}")
 
@@ -85,14 +86,6 @@ def test_every_registered_law_has_a_twin():
             return super().evaluate(z, state)
 
     assert not native.use_native("auto", Mine(2, (3.0,), k1=1.0, k2=1.0))
-
-
-def random_states(rng, n, r):
-    """States over 10 decades of magnitude, with exact zeros in some components (sign(0) = 0)."""
-    z = rng.standard_normal((n, r)) * 10.0 ** rng.uniform(-8.0, 2.0, (n, 1))
-    z[rng.random((n, r)) < 0.05] = 0.0
-    z[0] = 0.0
-    return z
 
 
 def random_law_states(rng, law, n):
