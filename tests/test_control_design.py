@@ -4,6 +4,7 @@ independently at many points and at every vertex."""
 
 import itertools
 import json
+import re
 
 import numpy as np
 import pytest
@@ -17,6 +18,7 @@ from ftstab_mj.metrics.certificate_cache import cached_certify
 from ftstab_mj.simulation.ideal_chain import simulate_chain
 from ftstab_mj.scenario import load_scenario, shipped_scenarios
 from test_control_certificate import K0_SETS, exact_k0
+from test_readme import docs_design_text
 
 
 def test_nelder_mead_finds_a_quadratic_minimum():
@@ -414,6 +416,14 @@ def test_cli_u_max_holds_on_the_region(r, k, u_max, region, objective):
     assert u_vert.max() <= u_max and u_pts.max() <= u_vert.max()
     assert u_vert.max() == pytest.approx(out["u0_max"], rel=1e-12)
     assert u_vert.max() > 0.99 * u_max
+    if r == 3:  # docs/commands/design.md gives this design as its --u-max example: its figures are today's
+        text = docs_design_text()
+        num = r"([0-9]+(?:\.[0-9]+)?)"
+        m = re.search(rf"r = 3, k = -0\.1, U = 10, R = 1,0\.5,2 \(.*?\): gains {num}, {num}, {num}, "
+                      rf"c_lower = {num}, max \|u0\| = {num}", text)
+        assert m, "the --u-max example of docs/commands/design.md is not r = 3, k = -0.1, U = 10, R = 1,0.5,2"
+        assert out["gains"] == [float(m[i]) for i in (1, 2, 3)]
+        assert f"{out['certificate']['c_lower']:.5g}" == m[4] and f"{out['u0_max']:.6g}" == m[5]
 
 
 def test_a_refuted_range_widens_to_the_design_of_the_wider_one():

@@ -65,10 +65,11 @@ def _design(*args):
 
 
 def test_the_docs_design_examples_are_what_design_prints():
-    """The figures of the `ftstab design` examples in docs/commands/design.md (max-c, min-time at r = 2, --u-max
-    at r = 3) are what the command prints today (it is deterministic): gains to their 5 printed digits,
-    c_lower, T(z0) and max |u0| to the digits the page gives. They had gone stale (6.8565 for 6.8587, ...)."""
-    text = " ".join((ROOT / "docs" / "commands" / "design.md").read_text().split())
+    """The figures of the r = 2 `ftstab design` examples in docs/commands/design.md (max-c, min-time) are what the
+    command prints today (it is deterministic): gains to their 5 printed digits, c_lower and T(z0) to the digits
+    the page gives. They had gone stale (6.8565 for 6.8587, ...). The page's --u-max example at r = 3 is checked
+    by the test that designs it anyway (test_control_design.py::test_cli_u_max_holds_on_the_region)."""
+    text = docs_design_text()
     num = r"([0-9]+(?:\.[0-9]+)?)"
     m = re.search(rf"e\.g\. r = 2, k = -0\.2 gives gains {num}, {num} with c_lower = {num}", text)
     d = _design("--r", 2, "--k", -0.2)
@@ -76,10 +77,11 @@ def test_the_docs_design_examples_are_what_design_prints():
     m = re.search(rf"r = 2, k = -0\.2, z0 = \(1, 0\) and \(0, 1\): gains {num}, {num}, T = {num} s", text)
     d = _design("--r", 2, "--k", -0.2, "--objective", "min-time", "--z0", "1,0", "--z0", "0,1")
     assert d["gains"] == [float(m[1]), float(m[2])] and f"{d['time_bound']:.5g}" == m[3]
-    m = re.search(rf"r = 3, k = -0\.1, U = 10, R = 1: gains {num}, {num}, {num}, c_lower = {num}, max \|u0\| = {num}", text)
-    d = _design("--r", 3, "--k", -0.1, "--u-max", 10, "--region", 1)
-    assert d["gains"] == [float(m[i]) for i in (1, 2, 3)]
-    assert f"{d['certificate']['c_lower']:.5g}" == m[4] and f"{d['u0_max']:.6g}" == m[5]
+
+
+def docs_design_text() -> str:
+    """docs/commands/design.md with its line breaks and indents folded to single spaces."""
+    return " ".join((ROOT / "docs" / "commands" / "design.md").read_text().split())
 
 
 def _table(section: str) -> list[list[str]]:
