@@ -217,8 +217,28 @@ class Reader:
     names it after the file, since the value came from there and not from the file.
     """
 
-    def __init__(self, source: str, notes: dict[str, str] | None = None, error_cls=ScenarioError):
+    def __init__(self, source: str, notes: dict[str, str] | None = None, error_cls=ScenarioError,
+                 memo: dict | None = None):
         self.source, self.notes, self.error_cls = source, dict(notes or {}), error_cls
+        self.memo = memo
+
+    def memoized(self, tp, value, path, build):
+        """``build(tp, value, path)``, or what it gave before for this very table object at this path.
+
+        ``memo`` ({(id(table), tp, path): (table, result)}, shared by the readers of one base: see
+        ftstab_mj.scenario.loader.scenario_with): a table read without error once reads the same again
+        (the typed values are frozen and the checks depend on the table only), so a sweep row, whose
+        tables are the base's own objects but along its overridden paths, reads only those paths.
+        The table is kept with its result: its id is not reused while the entry lives."""
+        if self.memo is None or type(value) is not dict:
+            return build(tp, value, path)
+        key = (id(value), tp, path)
+        hit = self.memo.get(key)
+        if hit is not None and hit[0] is value:
+            return hit[1]
+        out = build(tp, value, path)
+        self.memo[key] = (value, out)
+        return out
 
     def error(self, path: str, expected: str, found: str) -> ScenarioError:
         src = self.source
@@ -289,6 +309,11 @@ class Reader:
     def convert(self, tp, value, path):
         """Convert raw TOML ``value`` to the annotated type ``tp`` (float, int, str, bool, dict,
         ``X | None``, ``tuple[X, ...]``, a dataclass; a subclass may handle more in :meth:`special`)."""
+        if type(value) is dict and tp is not dict and self.memo is not None:  # a table: typed once per object
+            return self.memoized(tp, value, path, self._convert)
+        return self._convert(tp, value, path)
+
+    def _convert(self, tp, value, path):
         if tp is float:
             return self.number(value, path)
         if tp is int:

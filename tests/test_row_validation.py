@@ -1,0 +1,75 @@
+"""A sweep row's scenario (loader.scenario_with): only the row's overridden tables are read again, the
+others come from the base's memo; the result and every error must be those of validating the whole file.
+
+The reference is the plain path: a deep copy of the base with the values set, validated by
+scenario_from_dict (no memo). Rows mix values that change the model (plant mass), the law's
+parameters, a signal, the initial state and a whole controller table.
+"""
+
+import copy
+
+import pytest
+from conftest import ROOT
+
+from ftstab_mj.config import keypath
+from ftstab_mj.config.errors import ScenarioError
+from ftstab_mj.config.tomlfile import read_toml
+from ftstab_mj.scenario.loader import scenario_from_dict, scenario_with
+
+BASE = ROOT / "scenarios" / "cart_r2_robust.toml"
+
+GOOD = [
+    (("loops.cart.disturbance.amplitude", 0.3),),
+    (("plant.mass", 2.5),),  # another model
+    (("loops.cart.controller.gains", [1.5, 2.5]), ("loops.cart.z0[0]", 0.25)),
+    (("loops.cart.controller", {"law": "nominal", "k": -0.2, "gains": [1.0, 2.0]}),),
+    (("sim.duration", 0.5), ("loops.cart.gain.offset", 1.2)),
+    (("loops.cart.disturbance.amplitude", 0.3),),  # a row seen before: the memo's own tables
+]
+
+BAD = [  # (values, the key path the one-line error names)
+    (("loops.cart.disturbance.amplitude", "big"),), "loops.cart.disturbance.amplitude",
+    (("plant.mass", -1.0),), "plant.mass",
+    (("loops.cart.controller.gains", [1.0]),), "loops.cart.controller.gains",
+    (("loops.cart.z0[1]", 2e9),), "loops.cart.z0[1]",
+    (("loops.cart.gain.offset", 0.1),), "loops.cart.gain",  # a check across fields: gamma(t) > 0
+]
+
+
+def _plain(raw, values):
+    data = copy.deepcopy(raw)
+    for path, value in values:
+        keypath.assign(data, keypath.parse(path), value, str(BASE))
+    return scenario_from_dict(data, str(BASE), {p: f"row: {p}" for p, _ in values})
+
+
+def _error(fn):
+    with pytest.raises(ScenarioError) as exc:
+        fn()
+    return str(exc.value)
+
+
+def test_row_scenarios_equal_the_whole_file_validated_and_leave_the_base_unchanged():
+    raw = read_toml(BASE, "scenario file (.toml)")
+    before = copy.deepcopy(raw)
+    scenario_from_dict(raw, str(BASE))
+    masses = set()
+    for values in GOOD + GOOD:  # twice: the second pass reads every table from the memo
+        notes = {p: f"row: {p}" for p, _ in values}
+        sc = scenario_with(raw, values, str(BASE), notes)
+        assert sc == _plain(raw, values), values
+        masses.add(sc.plant.params["mass"])
+        assert raw == before  # the rows' values never reach the base
+    assert masses == {1.0, 2.5}
+
+
+@pytest.mark.parametrize("values, where", [BAD[i:i + 2] for i in range(0, len(BAD), 2)],
+                         ids=[BAD[i + 1] for i in range(0, len(BAD), 2)])
+def test_a_bad_row_value_is_the_same_one_line_error_after_good_rows(values, where):
+    raw = read_toml(BASE, "scenario file (.toml)")
+    for good in GOOD:  # the memo holds every table of the base
+        scenario_with(raw, good, str(BASE), {p: f"row: {p}" for p, _ in good})
+    notes = {p: f"row: {p}" for p, _ in values}
+    text = _error(lambda: scenario_with(raw, values, str(BASE), notes))
+    assert text == _error(lambda: _plain(raw, values))
+    assert "\n" not in text and where in text and "row: " in text
