@@ -1,4 +1,7 @@
-"""A sweep row's scenario (loader.scenario_with): only the row's overridden tables are read again, the
+"""A sweep row's set-up, made once per base or per model where it can be: the result must be what the
+whole set-up gives.
+
+The row's scenario (loader.scenario_with): only the row's overridden tables are read again, the
 others come from the base's memo; the result and every error must be those of validating the whole file.
 
 The reference is the plain path: a deep copy of the base with the values set, validated by
@@ -73,3 +76,21 @@ def test_a_bad_row_value_is_the_same_one_line_error_after_good_rows(values, wher
     text = _error(lambda: scenario_with(raw, values, str(BASE), notes))
     assert text == _error(lambda: _plain(raw, values))
     assert "\n" not in text and where in text and "row: " in text
+
+
+def test_a_cart_seen_before_compiles_to_the_model_of_its_own_text():
+    """Plant.compile of a cart whose spec was compiled before (the text skipped, Plant.spec_key) gives
+    the model its parameters make: the model of its MJCF text, with its mass; rows of other masses
+    in between do not leak into it."""
+    import mujoco
+
+    from ftstab_mj.plants import make_plant
+    from ftstab_mj.plants.base import model_bytes
+
+    for params in ({"mass": 1.0}, {"mass": 2.5}, {"mass": 1.0}, {"mass": 1.0, "friction": 0.3}, {"mass": 2.5}):
+        for nuserdata in (0, 2):
+            model, data, xml = make_plant("cart", params).compile(0.001, "euler", nuserdata)
+            assert model_bytes(model) == model_bytes(mujoco.MjModel.from_xml_string(xml))
+            assert model.nuserdata == nuserdata and data.userdata.shape == (nuserdata,)
+            assert model.body_mass[1] == params["mass"]
+            assert model.dof_frictionloss[0] == params.get("friction", 0.0)
