@@ -36,6 +36,7 @@ BAD = [  # (values, the key path the one-line error names)
     (("loops.cart.controller.gains", [1.0]),), "loops.cart.controller.gains",
     (("loops.cart.z0[1]", 2e9),), "loops.cart.z0[1]",
     (("loops.cart.gain.offset", 0.1),), "loops.cart.gain",  # a check across fields: gamma(t) > 0
+    (("loops.cart.controller.k", 0.5),), "loops.cart.controller.k",  # the law's own check (Hong's k)
 ]
 
 
