@@ -95,3 +95,21 @@ def test_a_cart_seen_before_compiles_to_the_model_of_its_own_text():
             assert model.nuserdata == nuserdata and data.userdata.shape == (nuserdata,)
             assert model.body_mass[1] == params["mass"]
             assert model.dof_frictionloss[0] == params.get("friction", 0.0)
+
+
+def test_sweep_rows_of_two_masses_run_as_their_whole_scenarios_do():
+    """Rows that change the model (plant.mass) between rows that do not, run by the sweep's task: each
+    row's metrics are those of its scenario validated whole and run alone (every metric, exactly)."""
+    from ftstab_mj.scenario.run import run_scenario
+    from ftstab_mj.studies.sweep.engine import execute
+    from ftstab_mj.studies.sweep.row import ScenarioTask
+
+    raw = read_toml(BASE, "scenario file (.toml)")
+    raw["sim"]["duration"] = 0.2
+    rows = [(i, (("plant.mass", mass), ("loops.cart.disturbance.amplitude", amp)))
+            for i, (mass, amp) in enumerate([(1.0, 0.3), (2.5, 0.3), (1.0, 0.6), (2.5, 0.6), (1.0, 0.3)])]
+    got = dict(execute(rows, ScenarioTask(raw, str(BASE))))
+    for i, values in rows:
+        want = run_scenario(_plain(raw, values)).metrics
+        assert got[i]["status"] == "completed" and got[i]["metrics"] == want, values
+    assert got[0]["metrics"] == got[4]["metrics"] and got[0]["metrics"] != got[1]["metrics"]

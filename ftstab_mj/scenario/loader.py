@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import functools
 import math
+import threading
 import zlib
 from dataclasses import fields, is_dataclass, replace
 from pathlib import Path
@@ -448,13 +449,17 @@ _MEMOS: dict[int, TableMemo] = {}
 MEMO_BASES = 4  # bases whose memo is kept (a sweep has one; a comparison one per scenario)
 
 
+_MEMOS_LOCK = threading.Lock()  # the batch engine's threads validate rows at once
+
+
 def _memo_of(raw: dict) -> TableMemo:
-    hit = _MEMOS.get(id(raw))
-    if hit is None or hit.base is not raw:
-        while len(_MEMOS) >= MEMO_BASES:
-            _MEMOS.pop(next(iter(_MEMOS)))
-        hit = _MEMOS[id(raw)] = TableMemo(raw)
-    return hit
+    with _MEMOS_LOCK:
+        hit = _MEMOS.get(id(raw))
+        if hit is None or hit.base is not raw:
+            while len(_MEMOS) >= MEMO_BASES:
+                _MEMOS.pop(next(iter(_MEMOS)))
+            hit = _MEMOS[id(raw)] = TableMemo(raw)
+        return hit
 
 
 def _own_path(data: dict, parts) -> None:
