@@ -447,8 +447,6 @@ def scenario_with(raw: dict, values, source: str, notes: dict[str, str] | None =
 # {id(raw): TableMemo(raw)}: the tables of the last few bases already read (Reader.memoized)
 _MEMOS: dict[int, TableMemo] = {}
 MEMO_BASES = 4  # bases whose memo is kept (a sweep has one; a comparison one per scenario)
-
-
 _MEMOS_LOCK = threading.Lock()  # the batch engine's threads validate rows at once
 
 
