@@ -67,3 +67,11 @@ def test_certificate_budget_benchmark_prints_a_row_per_population():
     assert [row[1].strip() for row in rows] == ["domain", "near certified"], out.stdout
     for row in rows:
         assert sum(int(row[i]) for i in (3, 4, 5)) == 2, out.stdout
+
+
+def test_row_cost_benchmark_prints_the_fixed_cost_of_a_sweep_row():
+    out = subprocess.run([sys.executable, "-m", "benchmarks.row_cost", "--rows", "4", "--duration", "0.05", "--repeat", "1"],
+                         capture_output=True, text=True, timeout=300, cwd=ROOT)
+    assert out.returncode == 0, out.stderr
+    for part in ("validation", "run", "bare mj_step", "fixed cost (validation + run - bare)"):
+        assert part in out.stdout, out.stdout

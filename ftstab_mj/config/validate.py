@@ -210,6 +210,24 @@ def _path_of(where) -> str:
 
 
 # -- the reader ---------------------------------------------------------------------------------------
+class TableMemo:
+    """What a :class:`Reader` read from the tables of ``base`` (raw TOML data, never changed while the
+    memo lives): a sweep row's data are the base's own tables but along its overridden paths
+    (ftstab_mj.scenario.loader.scenario_with), so its reader reads only those paths again. The memo
+    holds ``base``: the ids of its tables (``tables``) name them for as long as it lives."""
+
+    def __init__(self, base):
+        self.base, self.tables, self.read = base, set(), {}
+        stack = [base]  # iterative: the depth of input is bounded by the readers, not by Python's stack
+        while stack:
+            v = stack.pop()
+            if isinstance(v, dict):
+                self.tables.add(id(v))
+                stack.extend(v.values())
+            elif isinstance(v, list):
+                stack.extend(v)
+
+
 class Reader:
     """Typed values from raw TOML data; every problem raises ``error_cls`` with the key path.
 
@@ -217,8 +235,23 @@ class Reader:
     names it after the file, since the value came from there and not from the file.
     """
 
-    def __init__(self, source: str, notes: dict[str, str] | None = None, error_cls=ScenarioError):
+    def __init__(self, source: str, notes: dict[str, str] | None = None, error_cls=ScenarioError,
+                 memo: TableMemo | None = None):
         self.source, self.notes, self.error_cls = source, dict(notes or {}), error_cls
+        self.memo = memo
+
+    def memoized(self, tp, value, path, build):
+        """``build(tp, value, path)``, or what it gave before when ``value`` is a table of the memo's
+        base (:class:`TableMemo`) read before at this path as ``tp``: a table read without error once
+        reads the same again (the typed values are frozen and the checks depend on the table only)."""
+        memo = self.memo
+        if memo is None or id(value) not in memo.tables:
+            return build(tp, value, path)
+        key = (id(value), tp, path)
+        out = memo.read.get(key, memo)
+        if out is memo:
+            out = memo.read[key] = build(tp, value, path)
+        return out
 
     def error(self, path: str, expected: str, found: str) -> ScenarioError:
         src = self.source
@@ -289,6 +322,11 @@ class Reader:
     def convert(self, tp, value, path):
         """Convert raw TOML ``value`` to the annotated type ``tp`` (float, int, str, bool, dict,
         ``X | None``, ``tuple[X, ...]``, a dataclass; a subclass may handle more in :meth:`special`)."""
+        if type(value) is dict and tp is not dict and self.memo is not None:  # a base's table: read once
+            return self.memoized(tp, value, path, self._convert)
+        return self._convert(tp, value, path)
+
+    def _convert(self, tp, value, path):
         if tp is float:
             return self.number(value, path)
         if tp is int:

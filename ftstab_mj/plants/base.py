@@ -38,6 +38,7 @@ MODELS_DIR = data_dir("models")
 
 COMPILED_MODELS = 8  # compiled models kept per process, by MJCF text (Plant.compile)
 _COMPILED: dict[str, mujoco.MjModel] = {}
+_TEXTS: dict[tuple, str] = {}  # {(plant class, Plant.spec_key, step, integrator, nuserdata): MJCF text}
 SPARE_DATA = 4  # finished runs' MjData kept per compiled model for the next runs (release_data)
 _SPARE: dict[int, tuple] = {}  # {id(model): (model, [MjData reset])} for the models in _COMPILED
 _SPARE_LOCK = threading.Lock()  # the batch engine's threads compile and release at once
@@ -140,6 +141,9 @@ class Plant:
     actuator_ids: np.ndarray | None = None  # (n,) actuator of each loop; None: 0..n-1
     notes: tuple | list = ()  # lines to show the user about the model (a saturation kept, ...)
     integrators: tuple = tuple(INTEGRATORS)  # the sim.integrator values this plant runs with
+    # what determines the spec whole, hashable (a package model file and the parameters that edit it),
+    # or None (the spec's text is the key): lets :meth:`compile` skip writing the text of a spec seen before
+    spec_key: tuple | None = None
 
     def __init__(self, spec: mujoco.MjSpec):
         self._spec = spec
@@ -154,6 +158,16 @@ class Plant:
         if integrator not in self.integrators:
             raise ParameterError("integrator", "one of " + ", ".join(self.integrators)
                                  + ("" if self.integrators == tuple(INTEGRATORS) else f" for {self.model_name!r}"), integrator)
+        key = None if self.spec_key is None else (type(self), self.spec_key, float(physics_step), integrator,
+                                                  int(nuserdata))
+        xml = _TEXTS.get(key) if key is not None else None
+        with _SPARE_LOCK:
+            model = _COMPILED.pop(xml, None) if xml is not None else None
+            if model is not None:  # the text of this very spec, 0.4 ms on the cart (a sweep row's largest set-up)
+                _COMPILED[xml] = model  # the most recent last
+        if model is not None:
+            self.bind(model)
+            return model, _new_data(model), xml
         spec = self._spec.copy()
         spec.option.timestep = float(physics_step)
         spec.option.integrator = INTEGRATORS[integrator]
@@ -174,6 +188,10 @@ class Plant:
                 _SPARE.setdefault(id(model), (model, []))
                 while len(_COMPILED) > COMPILED_MODELS:
                     _SPARE.pop(id(_COMPILED.pop(next(iter(_COMPILED)))), None)
+                if key is not None:
+                    if len(_TEXTS) >= 4 * COMPILED_MODELS:
+                        _TEXTS.clear()
+                    _TEXTS[key] = xml
         self.bind(model)
         return model, _new_data(model), xml
 

@@ -50,6 +50,8 @@ class CartPlant(Plant):
         joint.damping = [damping, 0.0, 0.0]
         spec.actuators[0].gainprm[0] = mass
         super().__init__(spec)
+        # all the spec's edits of its package file, bit for bit (as hex: -0.0 == 0.0, yet not the same value)
+        self.spec_key = (integrating,) + tuple(v.hex() for v in (mass, friction, damping))
         self.model_name = model_name
         self.params = {"mass": mass, "friction": friction, "damping": damping}
         if integrating:

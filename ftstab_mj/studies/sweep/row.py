@@ -1,8 +1,9 @@
 """A sweep row as a scenario run: the base scenario + the row's values, run like ``ftstab run``.
 
 The row's (key path, value) pairs are set as typed values on the raw data of the base scenario
-(:func:`ftstab_mj.scenario.loader.scenario_with`: no TOML text in between), then the whole scenario is
-validated as a file is, so a varied parameter gets exactly the checks of the file. A table value
+(:func:`ftstab_mj.scenario.loader.scenario_with`: no TOML text in between), then the scenario is
+validated as a file is, so a varied parameter gets exactly the checks of the file (the base's tables
+the row does not touch are read once per sweep, the checks across fields made for every row). A table value
 replaces the table at its path: a grid over ``loops.cart.controller`` with whole controller tables
 switches laws cleanly (each table holds its own law's parameters only).
 
