@@ -25,7 +25,8 @@ def test_the_readme_example_runs_as_written(tmp_path, monkeypatch):
     scope = {}
     exec(compile(block, "README.md", "exec"), scope)  # noqa: S102 - the README's own code
     res = scope["res"]
-    assert res.status == "completed" and res.logs["mcap"].exists() and res.logs["rrd"].exists()
+    assert res.status == "completed" and res.logs["mcap"].exists() and "rrd" not in res.logs
+    assert not list(tmp_path.rglob("*.rrd"))  # the MCAP log only, as `ftstab run` (rrd=True, --rrd: the recording)
     assert res.samples["cart"]["z"].shape == (2000, 2) and np.isclose(res.samples["cart"]["t"][-1], 1.999)
 
 
@@ -66,5 +67,7 @@ def test_run_checks_its_log_paths_like_the_command(tmp_path):
         ftstab_mj.run("cart_r2_nominal", out=tmp_path / "file", overrides={"sim.duration": 0.01})
     (tmp_path / "cart_r2_nominal.rrd").write_text("another program's file")
     with pytest.raises(LogError, match=r"cart_r2_nominal.rrd: expected no file or an ftstab log there"):
-        ftstab_mj.run("cart_r2_nominal", out=tmp_path, overrides={"sim.duration": 0.01})
+        ftstab_mj.run("cart_r2_nominal", out=tmp_path, overrides={"sim.duration": 0.01}, rrd=True)
     assert not (tmp_path / "cart_r2_nominal.mcap").exists()  # neither log written
+    with pytest.raises(ValueError, match="rrd: expected out= as well"):
+        ftstab_mj.run("cart_r2_nominal", overrides={"sim.duration": 0.01}, rrd=True)
