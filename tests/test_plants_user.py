@@ -266,3 +266,16 @@ def test_unnamed_actuators_and_geoms_are_named_by_number_and_body(tmp_path):
     notes = make_plant(str(path), {"loops": {"a": {"joint": "y", "saturation": True}}}).notes
     assert any("of actuator #1 (unnamed, counted from 0) kept as its saturation" in n for n in notes), notes
     assert any("contacts that can happen ('floor - geom #1 of body b')" in n for n in notes), notes
+
+
+def test_a_missing_include_names_the_folder_it_is_read_from(tmp_path):
+    """dm_control's suite models include ./common/*.xml: copied alone, the refusal says which include and
+    the folder MuJoCo reads it from (the model's), in one line."""
+    from ftstab_mj.config.errors import ParameterError
+    from ftstab_mj.plants.user import check_model_files
+
+    (tmp_path / "m.xml").write_text('<mujoco><include file="./common/materials.xml"/><worldbody/></mujoco>')
+    with pytest.raises(ParameterError) as err:
+        check_model_files(tmp_path / "m.xml")
+    assert str(err.value) == (f"model: expected an MJCF include (MuJoCo reads m.xml's includes from {tmp_path}/) that "
+                              "is a regular file, got './common/materials.xml: no such file'")
