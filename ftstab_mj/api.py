@@ -26,7 +26,9 @@ class Result:
     ``rrd=True`` (empty when ``out`` is None); scenario: the resolved scenario (plain data);
     body_pos (n, nbody, 3) m and body_quat (n, nbody, 4) (w, x, y, z): the bodies' poses (for a
     replay, at the /tf display rate); all three None with ``keep_samples=False``; warning: a replay's
-    note on a truncated log, else None.
+    note on a truncated log, else None; notes: what the testbed made of a user's MJCF model (a
+    ctrlrange kept as a saturation, contacts no bound covers, ...), the lines ``ftstab run`` prints as
+    ``note:``; () for a shipped plant.
     """
 
     samples: dict
@@ -38,6 +40,7 @@ class Result:
     body_pos: object = None
     body_quat: object = None
     warning: str | None = None
+    notes: tuple = ()
 
 
 def _toml(value) -> str:
@@ -161,8 +164,13 @@ def run(scenario_or_path, out=None, overrides=None, live=False, foxglove=None, r
     finally:
         view.stop()
     res = done.result
+    notes = ()
+    if sc.plant.model.endswith(".xml"):  # as `ftstab run` prints them
+        from ftstab_mj.plants import make_plant
+
+        notes = tuple(make_plant(sc.plant.model, sc.plant.params).notes)
     return Result(samples=res.loops, metrics=done.metrics, status=res.status, message=res.message, logs=logs,
-                  scenario=scenario_to_dict(sc), body_pos=res.body_pos, body_quat=res.body_quat)
+                  scenario=scenario_to_dict(sc), body_pos=res.body_pos, body_quat=res.body_quat, notes=notes)
 
 
 def replay(path, keep_samples=True) -> Result:

@@ -71,3 +71,21 @@ def test_run_checks_its_log_paths_like_the_command(tmp_path):
     assert not (tmp_path / "cart_r2_nominal.mcap").exists()  # neither log written
     with pytest.raises(ValueError, match="rrd: expected out= as well"):
         ftstab_mj.run("cart_r2_nominal", overrides={"sim.duration": 0.01}, rrd=True)
+
+
+def test_run_of_a_user_model_returns_the_notes_the_command_prints(tmp_path):
+    """A user's MJCF with a ctrlrange: Result.notes holds the line `ftstab run` prints as "note:"."""
+    import ftstab_mj
+
+    (tmp_path / "m.xml").write_text("""<mujoco><worldbody><body name="b"><joint name="x" type="slide" axis="1 0 0"/>
+<geom type="box" size=".1 .1 .1" contype="0" conaffinity="0"/></body></worldbody>
+<actuator><motor name="m" joint="x" ctrlrange="-5 5"/></actuator></mujoco>""")
+    sc = ftstab_mj.scenario_from_dict(
+        {"name": "box", "description": "a box on a slide", "plant": {"model": "m.xml", "loops": {"x": {"joint": "x", "saturation": True}}},
+         "sim": {"duration": 0.01},
+         "loops": {"x": {"z0": [0.1, 0.0], "controller": {"law": "nominal", "k": -0.2, "gains": [1.0, 2.0]}}}},
+        base_dir=tmp_path)
+    res = ftstab_mj.run(sc)
+    assert res.status == "completed" and len(res.notes) == 1
+    assert res.notes[0].startswith("loop 'x': ctrlrange [-5.0, 5.0] of actuator 'm' kept as its saturation")
+    assert ftstab_mj.run("cart_r2_nominal", overrides={"sim.duration": 0.01}).notes == ()
