@@ -27,8 +27,11 @@ HERE = Path(__file__).resolve().parent
 
 
 def gymnasium_model(name: str) -> Path:
-    import gymnasium
-
+    try:
+        import gymnasium
+    except ImportError:  # one line, as the tool says bad input
+        raise SystemExit(f"examples/your_robot.py: expected gymnasium installed (its {name} is the robot: "
+                         "pip install gymnasium), found none") from None
     return Path(gymnasium.__file__).parent / "envs" / "mujoco" / "assets" / name
 
 

@@ -22,11 +22,13 @@ class Result:
     samples: {loop name: {field: NumPy array}} with the fields of records.LOOP_FIELDS (z (n, r),
     others (n,), chain units; time t in s) and any the loop adds; metrics: the metrics dict
     (as ``ftstab run --json`` prints it); status: "completed" | "diverged" | "interrupted" |
-    "failed"; message: why a run stopped early; logs: {"mcap": Path, "rrd": Path} written
-    (empty when ``out`` is None); scenario: the resolved scenario (plain data);
+    "failed"; message: why a run stopped early; logs: {"mcap": Path} written, and "rrd": Path with
+    ``rrd=True`` (empty when ``out`` is None); scenario: the resolved scenario (plain data);
     body_pos (n, nbody, 3) m and body_quat (n, nbody, 4) (w, x, y, z): the bodies' poses (for a
     replay, at the /tf display rate); all three None with ``keep_samples=False``; warning: a replay's
-    note on a truncated log, else None.
+    note on a truncated log, else None; notes: what the testbed made of a user's MJCF model (a
+    ctrlrange kept as a saturation, contacts no bound covers, ...), the lines ``ftstab run`` prints as
+    ``note:``; () for a shipped plant.
     """
 
     samples: dict
@@ -38,6 +40,7 @@ class Result:
     body_pos: object = None
     body_quat: object = None
     warning: str | None = None
+    notes: tuple = ()
 
 
 def _toml(value) -> str:
@@ -107,10 +110,12 @@ def load_scenario(name_or_path, overrides=None):
 
 
 def run(scenario_or_path, out=None, overrides=None, live=False, foxglove=None, realtime=False,
-        keep_samples=True) -> Result:
+        keep_samples=True, rrd=False) -> Result:
     """Run a scenario (a Scenario, a shipped name or a .toml path) and return its :class:`Result`.
 
-    out: a directory for ``<name>.mcap`` and ``<name>.rrd`` (None: no logs); overrides: as for
+    out: a directory for the MCAP log ``<name>.mcap`` (None: no logs); rrd: also write the Rerun
+    recording ``<name>.rrd`` there as the run goes, as ``ftstab run --rrd`` (costs more CPU than the
+    physics; ``ftstab view <name>.mcap`` makes the same one afterwards); overrides: as for
     :func:`load_scenario` (not with a Scenario); live: streams the run to Rerun as it happens, as
     ``ftstab run --live`` does: False, True (a native viewer when there is a display, else "serve"),
     "spawn", "serve" (a ``rerun --serve-web`` server on ports 9876/9090, left running), or a
@@ -137,9 +142,11 @@ def run(scenario_or_path, out=None, overrides=None, live=False, foxglove=None, r
         sc = scenario_or_path
     else:
         sc = load_scenario(scenario_or_path, overrides)
+    if rrd and out is None:
+        raise ValueError("rrd: expected out= as well (the directory the recording is written in)")
     if foxglove is not None and out is None:
         raise ValueError("foxglove: expected out= as well (the Foxglove server publishes what the MCAP log gets)")
-    run_logs = None if out is None else open_run_logs(out, sc.name)  # checked before any viewer starts
+    run_logs = None if out is None else open_run_logs(out, sc.name, rrd=rrd)  # checked before any viewer starts
     try:
         view = LiveView(live, foxglove, realtime)
     except OSError as exc:  # the Foxglove port in use, or not an address of this host: before any log exists
@@ -148,7 +155,7 @@ def run(scenario_or_path, out=None, overrides=None, live=False, foxglove=None, r
     sinks, logs = list(view.sinks()), {}
     try:
         if run_logs is not None:
-            logs = {"mcap": run_logs.mcap, "rrd": run_logs.rrd}
+            logs = {"mcap": run_logs.mcap} | ({"rrd": run_logs.rrd} if rrd else {})
             sinks += run_logs.sinks(view)
         elif view.rerun:
             sinks.append(RerunSink(None, live=view.rerun))
@@ -157,8 +164,13 @@ def run(scenario_or_path, out=None, overrides=None, live=False, foxglove=None, r
     finally:
         view.stop()
     res = done.result
+    notes = ()
+    if sc.plant.model.endswith(".xml"):  # as `ftstab run` prints them
+        from ftstab_mj.plants import make_plant
+
+        notes = tuple(make_plant(sc.plant.model, sc.plant.params).notes)
     return Result(samples=res.loops, metrics=done.metrics, status=res.status, message=res.message, logs=logs,
-                  scenario=scenario_to_dict(sc), body_pos=res.body_pos, body_quat=res.body_quat)
+                  scenario=scenario_to_dict(sc), body_pos=res.body_pos, body_quat=res.body_quat, notes=notes)
 
 
 def replay(path, keep_samples=True) -> Result:

@@ -25,7 +25,8 @@ def test_the_readme_example_runs_as_written(tmp_path, monkeypatch):
     scope = {}
     exec(compile(block, "README.md", "exec"), scope)  # noqa: S102 - the README's own code
     res = scope["res"]
-    assert res.status == "completed" and res.logs["mcap"].exists() and res.logs["rrd"].exists()
+    assert res.status == "completed" and res.logs["mcap"].exists() and "rrd" not in res.logs
+    assert not list(tmp_path.rglob("*.rrd"))  # the MCAP log only, as `ftstab run` (rrd=True, --rrd: the recording)
     assert res.samples["cart"]["z"].shape == (2000, 2) and np.isclose(res.samples["cart"]["t"][-1], 1.999)
 
 
@@ -66,5 +67,25 @@ def test_run_checks_its_log_paths_like_the_command(tmp_path):
         ftstab_mj.run("cart_r2_nominal", out=tmp_path / "file", overrides={"sim.duration": 0.01})
     (tmp_path / "cart_r2_nominal.rrd").write_text("another program's file")
     with pytest.raises(LogError, match=r"cart_r2_nominal.rrd: expected no file or an ftstab log there"):
-        ftstab_mj.run("cart_r2_nominal", out=tmp_path, overrides={"sim.duration": 0.01})
+        ftstab_mj.run("cart_r2_nominal", out=tmp_path, overrides={"sim.duration": 0.01}, rrd=True)
     assert not (tmp_path / "cart_r2_nominal.mcap").exists()  # neither log written
+    with pytest.raises(ValueError, match="rrd: expected out= as well"):
+        ftstab_mj.run("cart_r2_nominal", overrides={"sim.duration": 0.01}, rrd=True)
+
+
+def test_run_of_a_user_model_returns_the_notes_the_command_prints(tmp_path):
+    """A user's MJCF with a ctrlrange: Result.notes holds the line `ftstab run` prints as "note:"."""
+    import ftstab_mj
+
+    (tmp_path / "m.xml").write_text("""<mujoco><worldbody><body name="b"><joint name="x" type="slide" axis="1 0 0"/>
+<geom type="box" size=".1 .1 .1" contype="0" conaffinity="0"/></body></worldbody>
+<actuator><motor name="m" joint="x" ctrlrange="-5 5"/></actuator></mujoco>""")
+    sc = ftstab_mj.scenario_from_dict(
+        {"name": "box", "description": "a box on a slide", "plant": {"model": "m.xml", "loops": {"x": {"joint": "x", "saturation": True}}},
+         "sim": {"duration": 0.01},
+         "loops": {"x": {"z0": [0.1, 0.0], "controller": {"law": "nominal", "k": -0.2, "gains": [1.0, 2.0]}}}},
+        base_dir=tmp_path)
+    res = ftstab_mj.run(sc)
+    assert res.status == "completed" and len(res.notes) == 1
+    assert res.notes[0].startswith("loop 'x': ctrlrange [-5.0, 5.0] of actuator 'm' kept as its saturation")
+    assert ftstab_mj.run("cart_r2_nominal", overrides={"sim.duration": 0.01}).notes == ()

@@ -13,8 +13,7 @@ calls it (its powers of NumPy scalars are libm's pow, as in laws.c). The C code 
 operations in its order, so one sample is bit-identical (tolerance 0), except where NumPy sums
 through a BLAS dot product (linear's K z, P z; a surface of r > 2 coefficients), whose order may
 differ: there 1e-13 relative to max(1, sum of |terms| x the largest gain), a sum's rounding (r eps
-per term) with margin; and the implicit robust law on Hong's controller, whose V1 has one rounding
-more in C (tests/test_native.py, 1e-12). Whole runs: 1e-12 relative to max(1, |value|) as for the
+per term) with margin. Whole runs: 1e-12 relative to max(1, |value|) as for the
 paper's laws; measured bit-identical.
 """
 
@@ -131,8 +130,8 @@ def test_one_sample_agrees_on_random_states(law):
     ref, ref_next = reference_sample(law, z, x)
     fast, fast_next = native.law_sample(law, z, x, PERIOD)
     scale = dot_scale(law, z)
-    # Hong's V1: one rounding more in C (tests/test_native.py); a BLAS sum: its rounding; else the same doubles
-    tol = 1e-12 if isinstance(law, RobustLaw) else (1e-13 if np.any(scale != 1.0) else 0.0)
+    # a BLAS sum: its rounding; else the same doubles (Hong's V1 included: |a|^(b+1) as |a|^b |a| on both)
+    tol = 1e-13 if np.any(scale != 1.0) else 0.0
     for name in ref._fields:
         a = np.broadcast_to(getattr(ref, name), (n,))
         b = getattr(fast, name)

@@ -349,7 +349,8 @@ def test_verify_compares_across_kernel_paths_within_the_stated_tolerance(tmp_pat
     else:
         assert f"within the cross-path tolerance (written on the {written} kernel path, re-run on the {replayed}" in out
         worst = float(out.split("largest difference ")[1].split(" of it")[0])
-        assert 0 < worst <= 1  # the paths do differ (so bit for bit would fail), within the tolerance
+        # within the tolerance; 0 where NumPy's pow is libm's (x86-64 without AVX-512): the same operations
+        assert 0 <= worst <= 1
 
 
 def test_the_cross_path_tolerance_is_a_few_ulp_per_sample():

@@ -249,3 +249,33 @@ def test_models_of_equal_text_but_other_meshes_are_never_confused(tmp_path):
         assert mass == fresh and mass == pytest.approx(100 * side ** 3, rel=1e-6), (path, side)
         _, gamma_m, gamma_M = plant.true_bounds([(0.0, 0.0)], [(1.0, 1.0)])
         np.testing.assert_allclose([gamma_m[0], gamma_M[0]], 1.0 / fresh, rtol=1e-12)
+
+
+def test_unnamed_actuators_and_geoms_are_named_by_number_and_body(tmp_path):
+    """Most models name few actuators and geoms (gymnasium's reacher and pusher name none of their motors):
+    a refusal or a note says "actuator #1 (unnamed, counted from 0)" and "geom #2 of body b", not '#1'."""
+    from ftstab_mj.config.errors import ParameterError
+
+    path = tmp_path / "unnamed.xml"
+    path.write_text("""<mujoco><worldbody><geom name="floor" type="plane" size="1 1 .1"/>
+<body name="b" pos="0 0 .2"><joint name="x" type="slide" axis="1 0 0"/><joint name="y" type="slide" axis="0 1 0"/>
+<geom type="box" size=".1 .1 .1"/></body></worldbody>
+<actuator><motor joint="x"/><motor joint="y" ctrlrange="-1 1"/></actuator></mujoco>""")
+    with pytest.raises(ParameterError, match=r"actuator #1 \(unnamed, counted from 0\) with ctrlrange"):
+        make_plant(str(path), {"loops": {"a": {"joint": "y"}}})
+    notes = make_plant(str(path), {"loops": {"a": {"joint": "y", "saturation": True}}}).notes
+    assert any("of actuator #1 (unnamed, counted from 0) kept as its saturation" in n for n in notes), notes
+    assert any("contacts that can happen ('floor - geom #1 of body b')" in n for n in notes), notes
+
+
+def test_a_missing_include_names_the_folder_it_is_read_from(tmp_path):
+    """dm_control's suite models include ./common/*.xml: copied alone, the refusal says which include and
+    the folder MuJoCo reads it from (the model's), in one line."""
+    from ftstab_mj.config.errors import ParameterError
+    from ftstab_mj.plants.user import check_model_files
+
+    (tmp_path / "m.xml").write_text('<mujoco><include file="./common/materials.xml"/><worldbody/></mujoco>')
+    with pytest.raises(ParameterError) as err:
+        check_model_files(tmp_path / "m.xml")
+    assert str(err.value) == (f"model: expected an MJCF include (MuJoCo reads m.xml's includes from {tmp_path}/) that "
+                              "is a regular file, got './common/materials.xml: no such file'")

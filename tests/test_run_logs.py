@@ -11,7 +11,10 @@ from ftstab_mj.logs.run_logs import open_run_logs
 
 
 def test_paths_and_sinks(tmp_path):
-    logs = open_run_logs(tmp_path / "a" / "b", "demo")  # the directory is made
+    only = open_run_logs(tmp_path / "a" / "b", "demo")  # the directory is made; the MCAP log unless asked
+    assert only.paths == (tmp_path / "a" / "b" / "demo.mcap",) and only.rrd is None
+    assert [type(s) for s in only.sinks()] == [McapSink]
+    logs = open_run_logs(tmp_path / "a" / "b", "demo", rrd=True)
     assert logs.paths == (tmp_path / "a" / "b" / "demo.mcap", tmp_path / "a" / "b" / "demo.rrd")
     assert (tmp_path / "a" / "b").is_dir() and not logs.mcap.exists() and not logs.rrd.exists()
     mcap, rrd = logs.sinks()
@@ -46,8 +49,9 @@ def test_a_directory_cannot_be_made(tmp_path):
 
 def test_log_paths_refused_before_either_is_written(tmp_path):
     (tmp_path / "demo.rrd").mkdir()
+    assert open_run_logs(tmp_path, "demo").rrd is None  # not asked for: not looked at
     with pytest.raises(LogError, match=r": expected demo.rrd to be a writable file, found a directory$"):
-        open_run_logs(tmp_path, "demo")
+        open_run_logs(tmp_path, "demo", rrd=True)
     assert not (tmp_path / "demo.mcap").exists()
     os.rmdir(tmp_path / "demo.rrd")
     (tmp_path / "demo.mcap").write_text("not a log")

@@ -249,7 +249,7 @@ def test_advance_accepts_the_float_drift_of_long_runs_and_refuses_mid_period_cal
 def test_a_mujoco_warning_stops_the_run_as_diverged(tmp_path, monkeypatch, native):
     """A force so large that qacc exceeds MuJoCo's limit: MuJoCo warns (and resets the data); the
     run stops at the next sample with the warning named, keeping the samples before it."""
-    monkeypatch.chdir(tmp_path)  # MuJoCo appends its warnings to ./MUJOCO_LOG.TXT
+    monkeypatch.chdir(tmp_path)  # were MuJoCo's log on (plants/base.quiet_mujoco_log), ./MUJOCO_LOG.TXT
     loops = [LoopSpec("cart", controller=ROBUST2, disturbance=Signal("step", amplitude=1e12, t_step=0.05), z0=(1.0, 0.0))]
     res = simulate(make_plant("cart"), loops, duration=1.0, period=0.01, physics_step=0.001, divergence_limit=1e300,
                    native=native)

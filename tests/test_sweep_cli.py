@@ -103,7 +103,7 @@ def test_same_table_serially_on_two_processes_and_on_two_dask_workers(tmp_path):
     logs = tmp_path / "serial" / "logs"
     done = list(range(12))
     assert sorted(p.name for p in logs.glob("*.mcap")) == [f"row{i:05d}.mcap" for i in done]
-    assert len(list(logs.glob("*.rrd"))) == len(done)
+    assert not list(logs.glob("*.rrd"))  # a Rerun recording per row is not made (`ftstab view` makes one)
     data = read_log(logs / f"row{done[-1]:05d}.mcap")
     replayed = flatten(compute_metrics(data.info, data.loops, data.recorded["status"]), "metrics", {})
     assert replayed == {k: t[k][done[-1]] for k in replayed}

@@ -37,7 +37,8 @@ def add_parser(sub) -> None:
     w.add_argument("--set", action="append", default=[], metavar="KEY.PATH=VALUE",
                    help="override a field of the base scenario for every run (repeatable), e.g. sim.duration=1")
     w.add_argument("--format", choices=("parquet", "csv"), default="parquet", help="table format (default parquet)")
-    w.add_argument("--logs", action="store_true", help="also write each run's logs, DIR/logs/rowNNNNN.mcap and .rrd")
+    w.add_argument("--logs", action="store_true", help="also write each run's MCAP log, DIR/logs/rowNNNNN.mcap "
+                                                          "(`ftstab view` makes its Rerun recording)")
     w.add_argument("--report", action="store_true",
                    help="draw the sweep file's [[report.plot]] figures into DIR/report/ (PNG) and print the fits")
     w.set_defaults(func=handle)

@@ -229,8 +229,14 @@ class HongController:
 
 
 def _W(z, a, b):
-    """W(z, a, b) = integral_a^z (sig(s,b) - sig(a,b)) ds >= 0, elementwise."""
-    return (np.abs(z) ** (b + 1.0) - np.abs(a) ** (b + 1.0)) / (b + 1.0) - sig(a, b) * (z - a)
+    """W(z, a, b) = integral_a^z (sig(s,b) - sig(a,b)) ds >= 0, elementwise.
+
+    |x|^(b+1) is taken as |x|^b |x|, the operations of the C kernel (native/laws.c hong_eval, which
+    reuses the |x|^b of the recursion): the two paths then give the same V1 bit for bit. A rounding
+    of V1 between them was fed back by the adaptive law (nu(V1)) and grew to 1e-7 over 10 s of a
+    coupled arm, beyond `replay --verify`'s cross-path tolerance."""
+    az, aa = np.abs(z), np.abs(a)
+    return (az ** b * az - aa ** b * aa) / (b + 1.0) - sig(a, b) * (z - a)
 
 
 def validate_hong(r, k, gains, form="full", check_hurwitz=True) -> None:

@@ -1,9 +1,9 @@
 """The logs of one run (``<name>.mcap`` for Foxglove and replay, and, when asked, ``<name>.rrd`` for
 Rerun) in an output directory: the one place their paths are made and checked, and their sinks built.
 
-``ftstab run`` writes the MCAP log only unless ``--rrd`` (importing rerun-sdk and writing the
-recording cost more CPU than the physics: docs/performance.md); ``ftstab view LOG`` makes the same
-``.rrd`` from the MCAP log when the user wants to look.
+``ftstab run``, :func:`ftstab_mj.run` and a sweep row write the MCAP log only unless asked (``--rrd``,
+``rrd=True``; importing rerun-sdk and writing the recording cost more CPU than the physics:
+docs/performance.md); ``ftstab view LOG`` makes the same ``.rrd`` from the MCAP log when the user wants to look.
 
 ``ftstab run``, :func:`ftstab_mj.run` (api.py) and a sweep row's logs (studies/sweep/row.py) all call
 :func:`open_run_logs`. Every check happens there, before any file is written and before any live
@@ -57,7 +57,7 @@ class RunLogs:
         return self.built
 
 
-def open_run_logs(out_dir, name: str, *, force: bool = False, what: str | None = None, rrd: bool = True) -> RunLogs:
+def open_run_logs(out_dir, name: str, *, force: bool = False, what: str | None = None, rrd: bool = False) -> RunLogs:
     """The logs ``out_dir/<name>.mcap`` and (``rrd``) ``.rrd`` of one run, checked; ``out_dir`` is made if absent.
 
     Raises LogError (one line, prefixed by ``what``, by default the directory's path; ``ftstab run``

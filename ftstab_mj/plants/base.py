@@ -36,6 +36,26 @@ from ftstab_mj.config.validate import number_problem
 
 MODELS_DIR = data_dir("models")
 
+
+def quiet_mujoco_log() -> None:
+    """Turn off MuJoCo's default log handler's outputs, the console line and ``MUJOCO_LOG.TXT`` in the
+    working directory, for the whole process (MuJoCo 4.0's mju_setLogConfig).
+
+    Why here, and process-wide: a run reads MuJoCo's warnings from its own MjData's counters
+    (d.warning, per run, so per thread of the batch engine) and says them in its own words (a diverged
+    run names mjWARN_BADCTRL and its count); MuJoCo's handler printed the first of each beside that and
+    left a file in the user's folder. Its configuration is one static struct that the handler reads: set
+    once, at the import of the plants (before any model is compiled or stepped), with no Python callback
+    called from the simulation threads (mujoco.set_mju_user_warning's would be, under the GIL, and could
+    not tell which run warned). MuJoCo's errors are unchanged: the bindings raise them as exceptions."""
+    config = mujoco.MjLogConfig.get()
+    if config.logto_console or config.logto_file:
+        config.logto_console = config.logto_file = False
+        config.set()
+
+
+quiet_mujoco_log()
+
 COMPILED_MODELS = 8  # compiled models kept per process, by MJCF text (Plant.compile)
 _COMPILED: dict[str, mujoco.MjModel] = {}
 _TEXTS: dict[tuple, str] = {}  # {(plant class, Plant.spec_key, step, integrator, nuserdata): MJCF text}

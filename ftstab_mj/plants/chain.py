@@ -63,6 +63,12 @@ def _name(m, objtype, i) -> str:
     return mujoco.mj_id2name(m, objtype, i) or f"#{i}"
 
 
+def _geom_name(m, g: int) -> str:
+    """A geom as a note names it: its name, or (most models name few geoms) its number and its body's."""
+    return mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_GEOM, g) or (
+        f"geom #{g} of body {_name(m, mujoco.mjtObj.mjOBJ_BODY, int(m.geom_bodyid[g]))}")
+
+
 def check_model(m: mujoco.MjModel, loops, key: str = "params.loops", constraints_key: str = "params",
                 joint_ranges: dict | None = None) -> list[str]:
     """Refuse what cannot be a loop (ParameterError naming ``key``.<loop>.<field>); return the notes
@@ -100,7 +106,8 @@ def check_model(m: mujoco.MjModel, loops, key: str = "params.loops", constraints
         if a < 0:
             raise ParameterError(f"{p}.actuator", "an actuator of the model (" + (_names(
                 [_name(m, mujoco.mjtObj.mjOBJ_ACTUATOR, a) for a in range(m.nu)], 12) or "the model has none") + ")", L.actuator)
-        actuator = L.actuator or _name(m, mujoco.mjtObj.mjOBJ_ACTUATOR, a)
+        named = L.actuator or mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_ACTUATOR, a)
+        actuator = f"actuator {named!r}" if named else f"actuator #{a} (unnamed, counted from 0)"  # as the lines below say it
         if m.actuator_trntype[a] != mujoco.mjtTrn.mjTRN_JOINT or m.actuator_trnid[a, 0] != j:
             target = (f"joint {_name(m, mujoco.mjtObj.mjOBJ_JOINT, int(m.actuator_trnid[a, 0]))!r}"
                       if m.actuator_trntype[a] == mujoco.mjtTrn.mjTRN_JOINT else "no joint directly (a tendon or site)")
@@ -110,21 +117,21 @@ def check_model(m: mujoco.MjModel, loops, key: str = "params.loops", constraints
                 raise _refusal(f"{p}.actuator", f"an actuator driving joint {L.joint!r} directly (a user model's "
                                      "loops are r = 2 or 3; through a spring the relative degree is 4, 5 with an "
                                      "integrating actuator: the shipped model 'flexible_joint')",
-                                     f"{actuator!r}, which reaches it through the spring {spring!r}")
+                                     f"{actuator}, which reaches it through the spring {spring!r}")
             raise _refusal(f"{p}.actuator", f"an actuator driving joint {L.joint!r}"
                                  + (f" ({', '.join(drivers)})" if drivers else " (the model has none: an unactuated joint)"),
-                                 f"{actuator!r}, which drives {target}")
+                                 f"{actuator}, which drives {target}")
         if m.actuator_gaintype[a] != mujoco.mjtGain.mjGAIN_FIXED:
             raise _refusal(f"{p}.actuator", "an actuator with a fixed gain (gamma from the model)",
-                                 f"{actuator!r} with gaintype {mujoco.mjtGain(m.actuator_gaintype[a]).name[7:].lower()}")
+                                 f"{actuator} with gaintype {mujoco.mjtGain(m.actuator_gaintype[a]).name[7:].lower()}")
         if not m.actuator_gainprm[a, 0] * m.actuator_gear[a, 0] > 0:
             raise _refusal(f"{p}.actuator", "an actuator with gain x gear > 0 (gamma > 0)",
-                                 f"{actuator!r} with gain {m.actuator_gainprm[a, 0]:g}, gear {m.actuator_gear[a, 0]:g}")
+                                 f"{actuator} with gain {m.actuator_gainprm[a, 0]:g}, gear {m.actuator_gear[a, 0]:g}")
         dyn = mujoco.mjtDyn(m.actuator_dyntype[a])
         want = mujoco.mjtDyn.mjDYN_INTEGRATOR if L.integrating else mujoco.mjtDyn.mjDYN_NONE
         if dyn != want:
             raise _refusal(f"{p}.integrating", f"{str(L.integrating).lower()} only for an actuator with dyntype "
-                                 f"{'integrator' if L.integrating else 'none'}", f"{actuator!r} with dyntype {dyn.name[6:].lower()}")
+                                 f"{'integrator' if L.integrating else 'none'}", f"{actuator} with dyntype {dyn.name[6:].lower()}")
         ranges = []
         if m.actuator_ctrllimited[a]:
             ranges.append(f"ctrlrange {m.actuator_ctrlrange[a].tolist()}")
@@ -137,10 +144,10 @@ def check_model(m: mujoco.MjModel, loops, key: str = "params.loops", constraints
         if ranges and not L.saturation:
             raise _refusal(f"{p}.saturation", "true to keep the actuator's range as its saturation (a "
                                  "discontinuous law must not be clamped silently), or a model without it",
-                                 f"{actuator!r} with {', '.join(ranges)}")
+                                 f"{actuator} with {', '.join(ranges)}")
         actuator_ids.append(a)
         if ranges:
-            notes.append(f"loop {L.name!r}: {', '.join(ranges)} of actuator {actuator!r} kept as its saturation: "
+            notes.append(f"loop {L.name!r}: {', '.join(ranges)} of {actuator} kept as its saturation: "
                          "the log records the control applied (u_applied) beside the law's u")
     return notes, np.array(actuator_ids, dtype=np.int32)
 
@@ -224,8 +231,7 @@ def _contact_pairs(m, most: int = 1000) -> list[str]:
     bodies, parent-child, <exclude>, explicit <pair>); at most ``most`` of them, [] when none can."""
     if m.opt.disableflags & mujoco.mjtDisableBit.mjDSBL_CONTACT:
         return []
-    geom = mujoco.mjtObj.mjOBJ_GEOM
-    out = [f"{_name(m, geom, int(a))} - {_name(m, geom, int(b))}" for a, b in zip(m.pair_geom1, m.pair_geom2)]
+    out = [f"{_geom_name(m, int(a))} - {_geom_name(m, int(b))}" for a, b in zip(m.pair_geom1, m.pair_geom2)]
     excluded = {tuple(sorted((int(b1), int(b2)))) for b1, b2 in zip(m.exclude_signature >> 16, m.exclude_signature & 0xFFFF)}
     filter_parent = not m.opt.disableflags & mujoco.mjtDisableBit.mjDSBL_FILTERPARENT
     weld = m.body_weldid
@@ -239,7 +245,7 @@ def _contact_pairs(m, most: int = 1000) -> list[str]:
                 continue
             if filter_parent and w1 and w2 and (int(weld[m.body_parentid[w1]]) == w2 or int(weld[m.body_parentid[w2]]) == w1):
                 continue
-            out.append(f"{_name(m, geom, g1)} - {_name(m, geom, g2)}")
+            out.append(f"{_geom_name(m, g1)} - {_geom_name(m, g2)}")
             if len(out) >= most:
                 return out
     return out

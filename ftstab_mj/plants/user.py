@@ -102,12 +102,15 @@ def check_model_files(path) -> None:
     from ftstab_mj.config.validate import not_regular
 
     top = Path(path)
-    todo, seen = [(top, MAX_MJCF_BYTES, "model file")], set()
+    todo, seen = [(top, MAX_MJCF_BYTES, "model file", top.name)], set()
     while todo:
-        p, limit, what = todo.pop()
+        p, limit, what, label = todo.pop()  # label: the file's name as the including file writes it
         found = not_regular(p)
         if found:
-            raise ParameterError("model", f"an MJCF {what} that is a regular file", f"{p.name}: {found}")
+            missing = what == "include" and found == "no such file"  # say where it was looked for
+            raise ParameterError("model", f"an MJCF {what}" + (f" (MuJoCo reads {top.name}'s includes from {top.parent}/)"
+                                                               if missing else "") + " that is a regular file",
+                                 f"{label}: {found}")
         size = os.stat(p).st_size
         if size > limit:
             raise ParameterError("model", f"an MJCF {what} of at most {limit} bytes (a limit)", f"{p.name}: {size} bytes")
@@ -122,7 +125,7 @@ def check_model_files(path) -> None:
         for name in re.findall(r"<include\b[^>]*?\bfile\s*=\s*[\"']([^\"']*)[\"']", text):
             if len(seen) + len(todo) >= MAX_INCLUDES:
                 raise ParameterError("model", f"at most {MAX_INCLUDES} included files (a limit)", f"{top.name}: more")
-            todo.append((top.parent / name, MAX_INCLUDE_BYTES, "include"))
+            todo.append((top.parent / name, MAX_INCLUDE_BYTES, "include", name))
 
 
 def load_model_spec(path: str) -> mujoco.MjSpec:

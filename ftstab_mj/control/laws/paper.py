@@ -261,7 +261,9 @@ def advance_phi_hat(law, V1, phi_hat, h, substeps: int = 8):
     nu = law.nu(V1)
     eta = law.eta
     ramp = phi + law.rate * h
-    decay = np.maximum(0.0, phi ** (1.0 - eta) - (1.0 - eta) * h) ** (1.0 / (1.0 - eta))
+    # np.power, not **: np.maximum returns a NumPy scalar for one state (the run loop's Python path),
+    # whose ** is libm's pow, not correctly rounded at 2.0 (eta = 0.5), where the ufunc and laws.c square
+    decay = np.power(np.maximum(0.0, phi ** (1.0 - eta) - (1.0 - eta) * h), 1.0 / (1.0 - eta))
     out = np.where(nu >= 1.0, ramp, decay)
     band = (nu > 0.0) & (nu < 1.0)
     if np.any(band):

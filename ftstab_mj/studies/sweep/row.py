@@ -48,7 +48,7 @@ KEEP_PREPARED = 20_000  # rows whose validated scenario is kept (~2 KB each); th
 @dataclass(frozen=True)
 class ScenarioTask:
     """Runs one row: ``base`` (raw TOML data of the base scenario, fixed overrides applied) + the row's
-    values. Picklable. ``logs``: directory for each run's ``<row>.mcap`` and ``<row>.rrd``, or None.
+    values. Picklable. ``logs``: directory for each run's MCAP log ``<row>.mcap``, or None.
     ``token``: names this task's prepared scenarios in :data:`_PREPARED` ("" for none); ``carried``:
     {row: (params, validated Scenario)} this copy of the task brings along (:meth:`carrying`)."""
 
