@@ -76,7 +76,8 @@ class Progress:
 
     def __init__(self, stream, total: int, before: int = 0, unit: str = "rows", refresh: float = 0.5,
                  clock=time.monotonic):
-        self.stream, self.total, self.before, self.unit, self.refresh, self.clock = stream, total, before, unit, refresh, clock
+        self.stream, self.total, self.before, self.unit = stream, total, before, unit
+        self.refresh, self.clock = refresh, clock
         self.tty = stream is not None and getattr(stream, "isatty", lambda: False)()
         self.ran, self.failed, self.start, self.shown_at, self.width = 0, 0, clock(), None, 0
 
@@ -87,7 +88,8 @@ class Progress:
         if self.ran and elapsed > 0:
             rate = self.ran / elapsed
             eta = left / rate
-            text += (f" {rate:.3g}" if rate < 1000 else f" {rate:.0f}") + f" {self.unit}/s" + (f", ~{eta:.0f} s left" if eta >= 0.5 else ", <1 s left" if left else "")
+            text += (f" {rate:.3g}" if rate < 1000 else f" {rate:.0f}") + f" {self.unit}/s"
+            text += f", ~{eta:.0f} s left" if eta >= 0.5 else ", <1 s left" if left else ""
         return text + (f", {self.failed} failed" if self.failed else "")
 
     def step(self, failed: bool = False, line: str | None = None, count: int = 1) -> None:
