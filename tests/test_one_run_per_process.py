@@ -284,7 +284,8 @@ def test_a_dask_worker_s_two_threads_run_rows_at_once_and_give_the_serial_result
     task = WhereScenarioTask(base, "test")
     grid = ([("euler", a) for a in (0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8)]
             + [("rk4", a) for a in (0.1, 0.4, 0.7, 0.8)])
-    items = [(i, (("sim.integrator", integ), ("loops.cart.disturbance.amplitude", a))) for i, (integ, a) in enumerate(grid)]
+    items = [(i, (("sim.integrator", integ), ("loops.cart.disturbance.amplitude", a)))
+             for i, (integ, a) in enumerate(grid)]
     serial = dict(execute(items, task, "serial"))
     got = dict(execute(items, task, "dask", scheduler=dask_cluster))
     assert all(r["status"] == "completed" for r in got.values()), [r["error"] for r in got.values()]

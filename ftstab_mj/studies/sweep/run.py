@@ -105,7 +105,8 @@ class Progress:
             return
         if failed and line is not None:
             self.note(line)
-        elif self.shown_at is None or self.clock() - self.shown_at >= self.refresh or self.before + self.ran == self.total:
+        elif (self.shown_at is None or self.clock() - self.shown_at >= self.refresh
+              or self.before + self.ran == self.total):
             self._show()
 
     def note(self, line: str) -> None:
