@@ -299,3 +299,39 @@ def test_a_dask_worker_s_two_threads_run_rows_at_once_and_give_the_serial_result
     overlap = [(a, b) for a in native for b in native if a < b and pid[a] == pid[b]
                and span[a][0] < span[b][1] and span[b][0] < span[a][1]]
     assert overlap, (pid, span)
+
+
+def test_building_a_plant_in_a_second_thread_never_calls_the_python_run_s_callback(monkeypatch):
+    """A flexible joint's construction runs forward passes on its own MjData once compiled (its constants,
+    checked). A thread of an engine (waiting for the slot) building one while this thread's Python-path run
+    installs its callback, between that compile and those passes, must wait for the slot, not have the passes
+    call this run's callback: a sample of a foreign MjData (it made --engine batch rows differ from serial
+    now and then under load)."""
+    from ftstab_mj.plants.callback import waiting_for_slot
+    from ftstab_mj.plants.flexible_joint import MODEL, FlexibleJointPlant
+
+    compiled, installed, calls, built = threading.Event(), threading.Event(), [], []
+    plain = FlexibleJointPlant.compile
+
+    def compile_then_let_the_run_in(self, *args, **kwargs):
+        out = plain(self, *args, **kwargs)
+        if threading.current_thread().name == "builder":
+            compiled.set()
+            installed.wait(30)
+        return out
+
+    monkeypatch.setattr(FlexibleJointPlant, "compile", compile_then_let_the_run_in)
+
+    def build():
+        with waiting_for_slot():
+            built.append(make_plant(MODEL))
+
+    t = threading.Thread(target=build, name="builder")
+    t.start()
+    assert compiled.wait(30)
+    with control_callback(lambda m, d: calls.append(d), owner=object()):
+        installed.set()
+        t.join(0.5)
+        assert t.is_alive() and not built and calls == []  # waiting for the slot
+    t.join(60)
+    assert built and calls == []
