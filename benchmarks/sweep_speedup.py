@@ -21,7 +21,9 @@ real command in a fresh process (wall from the command's start: engine start-up 
 alternately, --repeat times: serial, 2 dask workers (LocalCluster), 2 processes, and 2 workers of each
 of two external ``dask scheduler`` started once by this script (``dask worker --nworkers 2 --nthreads 1``:
 start-up paid once, as on a standing cluster), one with Dask's default configuration, one with the
-README's (engine.QUIET: no profiler, rarer periodic work). Prints median and range of the wall times, the
+README's (engine.QUIET: no profiler, rarer periodic work), and a third (README's configuration) with one
+worker of 2 threads (``--nworkers 1 --nthreads 2``: a worker's threads each run a chunk); and the batch
+engine on 2 threads. Prints median and range of the wall times, the
 speed-up of the medians over serial (of the command's wall, as before), the sweep's own wall next
 to it (from the first run's start to the table written, as the command prints it: what the engines
 gain without the start-up; its ratio to serial's is labelled "x"), the CPU of the command and its own workers, or of the
@@ -238,13 +240,13 @@ def config_environment(config: dict) -> dict[str, str]:
             for key, value in config.items()}
 
 
-def start_external(folder: Path, env: dict, name: str = "defaults"):
-    """A `dask scheduler` and `dask worker --nworkers 2 --nthreads 1` as subprocesses, with Dask's default
-    configuration ("defaults") or with engine.QUIET's as the README's cluster commands set it ("quiet");
-    (address, procs)."""
+def start_external(folder: Path, env: dict, name: str = "defaults", nworkers: int = 2, nthreads: int = 1):
+    """A `dask scheduler` and `dask worker --nworkers 2 --nthreads 1` (or ``nworkers``, ``nthreads``) as
+    subprocesses, with Dask's default configuration ("defaults") or with engine.QUIET's as the README's cluster
+    commands set it (any other name); (address, procs)."""
     from ftstab_mj.studies.sweep.engine import QUIET
 
-    env = {**env, **(config_environment(QUIET) if name == "quiet" else {})}
+    env = {**env, **(config_environment(QUIET) if name != "defaults" else {})}
     addr_file = folder / f"scheduler-{name}.json"
     dask = [sys.executable, "-m", "distributed.cli.dask_scheduler"]
     sched = subprocess.Popen(dask + ["--scheduler-file", str(addr_file), "--port", "0", "--dashboard-address", ":0"],
@@ -254,12 +256,12 @@ def start_external(folder: Path, env: dict, name: str = "defaults"):
             break
         time.sleep(0.1)
     worker = subprocess.Popen([sys.executable, "-m", "distributed.cli.dask_worker", "--scheduler-file", str(addr_file),
-                               "--nworkers", "2", "--nthreads", "1", "--no-dashboard"],
+                               "--nworkers", str(nworkers), "--nthreads", str(nthreads), "--no-dashboard"],
                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env)
     from distributed import Client
 
     with Client(scheduler_file=str(addr_file), timeout="30s") as client:
-        client.wait_for_workers(2, timeout=60)
+        client.wait_for_workers(nworkers, timeout=60)
         address = client.scheduler.address
     return address, (worker, sched)
 
@@ -390,11 +392,12 @@ def main():
             "serial": ("--workers", "1"),
             "dask, 2 workers": ("--engine", "dask", "--workers", "2"),
             "processes, 2 workers": ("--workers", "2"),
+            "batch, 2 threads": ("--engine", "batch", "--workers", "2"),
         }
         procs, clusters = (), {}
-        if not args.no_external:  # Dask's defaults, and the README's configuration
-            for how in ("defaults", "quiet"):
-                address, started = start_external(tmp, env, how)
+        if not args.no_external:  # Dask's defaults, the README's configuration, and 1 worker of 2 threads
+            for how, shape in (("defaults", (2, 1)), ("quiet", (2, 1)), ("quiet, 1 worker x 2 threads", (1, 2))):
+                address, started = start_external(tmp, env, how, *shape)
                 procs += started
                 configs[f"external dask, {how}"] = ("--scheduler", address)
                 clusters[f"external dask, {how}"] = {p.pid for p in started}
@@ -422,7 +425,7 @@ def main():
                     if proc.returncode != 0:
                         sys.exit(f"{name}: exit {proc.returncode}: {proc.stderr.strip().splitlines()[-1]}")
                     own = float(re.search(r"\(([0-9.]+) s from the first run's start to the table\)", proc.stdout)[1])
-                    print(f"{name:<26} {wall:6.2f} s wall ({own:5.2f} s of sweep) {cpu:6.2f} s CPU   "
+                    print(f"{name:<44} {wall:6.2f} s wall ({own:5.2f} s of sweep) {cpu:6.2f} s CPU   "
                           f"(load before: {load:.2f})", flush=True)
                     walls.setdefault(name, []).append(wall)
                     sweeps.setdefault(name, []).append(own)
@@ -445,7 +448,7 @@ def main():
               f"command's wall over serial's; sweep: wall from the first run's start to the table written:")
         for name, ws in walls.items():
             med, own = statistics.median(ws), statistics.median(sweeps[name])
-            print(f"  {name:<26} {med:6.2f} s [{min(ws):.2f}, {max(ws):.2f}]   speed-up {serial / med:4.2f}   "
+            print(f"  {name:<44} {med:6.2f} s [{min(ws):.2f}, {max(ws):.2f}]   speed-up {serial / med:4.2f}   "
                   f"sweep {own:5.2f} s [{min(sweeps[name]):.2f}, {max(sweeps[name]):.2f}] (x{serial_own / own:4.2f})   "
                   f"CPU {statistics.median(cpus[name]):6.2f} s")
         print(f"  the machine meanwhile: 2 processes x{statistics.median(capacity):.2f} faster than 1 on pure-Python "

@@ -102,3 +102,13 @@ class KillAlwaysTask(ChainTask):
                 f.write(f"{os.getpid()}\n")
             os.kill(os.getpid(), getattr(signal, self.signal))
         return super().__call__(index, params)
+
+
+@dataclass(frozen=True)
+class WhereScenarioTask(ScenarioTask):
+    """A :class:`ScenarioTask` whose metrics also say which process ran the row (``pid``)."""
+
+    def __call__(self, index, params) -> dict:
+        out = super().__call__(index, params)
+        out["metrics"] = dict(out["metrics"], pid=os.getpid())
+        return out

@@ -5,8 +5,9 @@ it is called with and serves any number of runs in any threads.
 Pinned here: a second Python-path run's callback cannot be installed while one is (a clear error,
 never a wrong trajectory), in the same thread or another; native runs interleaved in one thread or
 stepping at once in two threads (simulations and ``ftstab_mj.run``) give their single-run results;
-the sweep engines run one simulation at a time per process whatever the worker's thread count, so a
-real ``dask worker --nthreads 2`` gives the serial table.
+the serial and processes engines run one simulation at a time per process, while the threads of the batch
+engine and of a Dask worker run rows at once (native rows step together, a Python-path row waits for the slot),
+so a real ``dask worker --nthreads 2`` runs two rows at once and gives the serial table.
 """
 
 import ctypes
@@ -30,7 +31,7 @@ from ftstab_mj.plants.disturbances import Signal
 from ftstab_mj.plants import make_plant
 from ftstab_mj.scenario import LoopSpec
 from ftstab_mj.simulation.run_loop import Simulation
-from ftstab_mj.studies.sweep.engine import guarded
+from ftstab_mj.studies.sweep.engine import beside, execute, guarded
 from ftstab_mj.studies.sweep.row import ScenarioTask
 from ftstab_mj.studies.sweep.table import read_table
 from ftstab_mj.config.tomlfile import read_toml
@@ -68,7 +69,9 @@ def test_a_second_run_s_callback_is_refused_in_this_thread_and_the_first_run_goe
     with first.installed():
         a = first.advance(10).loops["cart"]["z"]
         with pytest.raises(CallbackBusy, match=r"cannot install a second simulation's control callback: MuJoCo's "
-                                               r"control callback is one slot per process .*--nthreads 1; runs on the native kernel share it\)$"):
+                                               r"control callback is one slot per process and another simulation holds it "
+                                               r"\(Simulation 0x[0-9a-f]+, thread 'MainThread'\); .*start it once the "
+                                               r"other has finished, or in another process .*share the slot$"):
             with second.installed():
                 pass
         # stepping another simulation without installing its callback is refused too (the native
@@ -196,18 +199,21 @@ def test_a_python_path_run_in_a_second_thread_is_refused_in_one_line_while_a_nat
     assert mujoco.get_mjcb_control() is None
 
 
-def test_sweep_rows_run_in_threads_of_one_process_give_the_serial_results(tmp_path):
-    """What a multi-threaded Dask worker does: several threads call the engine's guarded(task) at
-    once. Each waits for the process's one run; every row equals its serial result."""
+@pytest.mark.parametrize("run_row", [guarded, beside], ids=["guarded", "beside"])
+def test_sweep_rows_run_in_threads_of_one_process_give_the_serial_results(tmp_path, run_row):
+    """Several threads call the engine's guarded(task) (each waits for the process's one run) or beside(task)
+    (what a multi-threaded Dask worker does: native rows step at once, a Python-path row (RK4) waits for the
+    callback slot) at once; every row equals its serial result."""
     base = read_toml(ROOT / "scenarios" / "cart_r2_robust.toml", "scenario")
     base["sim"]["duration"] = 0.3
     task = ScenarioTask(base, "test")
-    params = [(("loops.cart.disturbance.amplitude", a),) for a in (0.2, 0.4, 0.8, 1.6)]
+    params = [(("loops.cart.disturbance.amplitude", a), ("sim.integrator", integ))
+              for a, integ in ((0.2, "euler"), (0.4, "rk4"), (0.8, "euler"), (1.6, "euler"))]
     serial = [guarded(task, i, p) for i, p in enumerate(params)]
     threaded = [None] * len(params)
 
     def row(i):
-        threaded[i] = guarded(task, i, params[i])
+        threaded[i] = run_row(task, i, params[i])
 
     threads = [threading.Thread(target=row, args=(i,)) for i in range(len(params))]
     for t in threads:
@@ -218,14 +224,15 @@ def test_sweep_rows_run_in_threads_of_one_process_give_the_serial_results(tmp_pa
     assert [r["metrics"] for r in threaded] == [r["metrics"] for r in serial]
 
 
-@pytest.fixture
-def dask_cluster(tmp_path):
+@pytest.fixture(scope="module")
+def dask_cluster(tmp_path_factory):
     """A real `dask scheduler` and `dask worker --nworkers 2 --nthreads 2`: 2 worker processes (as the
     README says to start them) of 2 threads each (the default of `dask worker` is several threads),
     as a user starts them; yields the scheduler address."""
     env = dict(os.environ)
     env["PYTHONPATH"] = str(ROOT) + os.pathsep + env.get("PYTHONPATH", "")
     dask = os.path.join(os.path.dirname(sys.executable), "dask")
+    tmp_path = tmp_path_factory.mktemp("dask")
     info = tmp_path / "scheduler.json"
     quiet = {"stdout": subprocess.DEVNULL, "stderr": subprocess.DEVNULL, "env": env, "cwd": tmp_path}
     procs = [subprocess.Popen([dask, "scheduler", "--host", "127.0.0.1", "--port", "0", "--no-dashboard",
@@ -266,3 +273,65 @@ def test_a_sweep_on_two_dask_worker_processes_of_two_threads_gives_the_serial_ta
         assert "12/12 runs in the table (12 completed)" in res.stdout, res.stdout
         tables[name] = results(read_table(tmp_path / name / "small.parquet"))
     assert tables["dask"] == tables["serial"]
+
+
+def test_a_dask_worker_s_two_threads_run_rows_at_once_and_give_the_serial_results(dask_cluster):
+    """On `dask worker --nthreads 2`, the worker's two threads each run a chunk at once (no per-process lock):
+    two native rows of one worker process overlap in time; Python-path rows (RK4) wait for the callback
+    slot beside them; every row's metrics are the serial ones."""
+    from tests.sweep_chain import WhereScenarioTask
+
+    base = read_toml(ROOT / "scenarios" / "cart_r2_robust.toml", "scenario")
+    base["sim"]["duration"] = 2.0  # ~10 ms of CPU a row: the first chunks (native) run together
+    task = WhereScenarioTask(base, "test")
+    grid = ([("euler", a) for a in (0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8)]
+            + [("rk4", a) for a in (0.1, 0.4, 0.7, 0.8)])
+    items = [(i, (("sim.integrator", integ), ("loops.cart.disturbance.amplitude", a)))
+             for i, (integ, a) in enumerate(grid)]
+    serial = dict(execute(items, task, "serial"))
+    got = dict(execute(items, task, "dask", scheduler=dask_cluster))
+    assert all(r["status"] == "completed" for r in got.values()), [r["error"] for r in got.values()]
+    pid = {i: r["metrics"].pop("pid") for i, r in got.items()}
+    assert {i: r["metrics"] for i, r in got.items()} == {i: {k: v for k, v in r["metrics"].items() if k != "pid"}
+                                                        for i, r in serial.items()}
+    native = [i for i, (integ, _) in enumerate(grid) if integ == "euler"]
+    span = {i: (got[i]["started_at"], got[i]["started_at"] + got[i]["elapsed_s"]) for i in native}
+    overlap = [(a, b) for a in native for b in native if a < b and pid[a] == pid[b]
+               and span[a][0] < span[b][1] and span[b][0] < span[a][1]]
+    assert overlap, (pid, span)
+
+
+def test_building_a_plant_in_a_second_thread_never_calls_the_python_run_s_callback(monkeypatch):
+    """A flexible joint's construction runs forward passes on its own MjData once compiled (its constants,
+    checked). A thread of an engine (waiting for the slot) building one while this thread's Python-path run
+    installs its callback, between that compile and those passes, must wait for the slot, not have the passes
+    call this run's callback: a sample of a foreign MjData (it made --engine batch rows differ from serial
+    now and then under load)."""
+    from ftstab_mj.plants.callback import waiting_for_slot
+    from ftstab_mj.plants.flexible_joint import MODEL, FlexibleJointPlant
+
+    compiled, installed, calls, built = threading.Event(), threading.Event(), [], []
+    plain = FlexibleJointPlant.compile
+
+    def compile_then_let_the_run_in(self, *args, **kwargs):
+        out = plain(self, *args, **kwargs)
+        if threading.current_thread().name == "builder":
+            compiled.set()
+            installed.wait(30)
+        return out
+
+    monkeypatch.setattr(FlexibleJointPlant, "compile", compile_then_let_the_run_in)
+
+    def build():
+        with waiting_for_slot():
+            built.append(make_plant(MODEL))
+
+    t = threading.Thread(target=build, name="builder")
+    t.start()
+    assert compiled.wait(30)
+    with control_callback(lambda m, d: calls.append(d), owner=object()):
+        installed.set()
+        t.join(0.5)
+        assert t.is_alive() and not built and calls == []  # waiting for the slot
+    t.join(60)
+    assert built and calls == []

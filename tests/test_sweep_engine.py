@@ -3,6 +3,7 @@
 The runs are the ideal chain under the robust law (tests/sweep_chain.py), 1 s of simulated time.
 """
 
+import io
 import json
 import math
 
@@ -11,7 +12,7 @@ import pytest
 
 from ftstab_mj.config.errors import SweepError
 from ftstab_mj.studies.sweep.expand import draw_value, expand, grid_values
-from ftstab_mj.studies.sweep.run import run_sweep
+from ftstab_mj.studies.sweep.run import Progress, run_sweep
 from ftstab_mj.studies.sweep.spec import Draw, GridParam, load_sweep
 from ftstab_mj.studies.sweep.table import VARYING_COLUMNS, read_journal, read_table
 from tests.sweep_chain import ChainTask
@@ -232,3 +233,43 @@ def test_report_names_a_missing_column(tmp_path):
     with pytest.raises(SweepError, match=r"s\.toml: report\.plot\[0\]\.y: expected a column of the sweep's table, "
                                          r"found 'metrics\.acc' \(did you mean 'metrics\.acc_z'\?\)"):
         make_report(sw, table, tmp_path / "report")
+
+
+class _Tty:
+    def __init__(self):
+        self.text = ""
+
+    def isatty(self):
+        return True
+
+    def write(self, text):
+        self.text += text
+
+    def flush(self):
+        pass
+
+
+def test_progress_is_one_rewritten_status_line_on_a_terminal_and_one_line_per_row_elsewhere():
+    """Terminal: the status ([done/total], rate, ETA, failures) rewritten at most every 0.5 s, a failed row's line
+    kept above it; a log: each row's own line, nothing rewritten. 5 rows, 2 done earlier, a clock in s."""
+    now = [0.0]
+    tty = _Tty()
+    shown = Progress(tty, 5, before=2, clock=lambda: now[0])
+    for t, failed in ((1.0, False), (1.2, True), (1.3, False)):
+        now[0] = t
+        shown.step(failed, f"row at {t} {'failed' if failed else 'completed'}")
+    shown.close()
+    # at 1.0: 1 row/s, 2 left; at 1.2 the failure's line, then the status; at 1.3 the last row (shown though < 0.5 s)
+    assert tty.text == ("\r[3/5] 1 rows/s, ~2 s left"
+                        "\r" + " " * 25 + "\rrow at 1.2 failed\n"  # the status wiped, the line kept
+                        "\r[4/5] 1.67 rows/s, ~1 s left, 1 failed"
+                        "\r[5/5] 2.31 rows/s, 1 failed" + " " * 11  # the longer status before it wiped
+                        + "\r[5/5] 2.31 rows/s, 1 failed\n")
+    assert all(len(line) < 80 for line in tty.text.split("\r"))
+    log = io.StringIO()
+    shown = Progress(log, 3)
+    for i in range(3):
+        shown.step(i == 1, f"row {i}")
+    shown.note("row 9: lost")
+    shown.close()
+    assert log.getvalue() == "row 0\nrow 1\nrow 2\nrow 9: lost\n"

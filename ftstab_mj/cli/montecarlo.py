@@ -46,6 +46,7 @@ def handle(args) -> int:
     from ftstab_mj.scenario import find_scenario, load_scenario
     from ftstab_mj.studies import montecarlo as mc
     from ftstab_mj.studies.compare import lost_line
+    from ftstab_mj.studies.sweep.run import Progress
     from ftstab_mj.studies.sweep.table import write_table
 
     path = find_scenario(args.scenario)
@@ -53,20 +54,17 @@ def handle(args) -> int:
     loop, box = mc.plan(sc, args.loop, args.states, args.box, args.on, args.workers, args.engine, args.scheduler)
     Z0 = mc.Distribution(args.states, tuple(box), args.seed).draw()
     out = output_dir(args.out or Path("runs") / f"{sc.name}-montecarlo", f"--out {args.out}" if args.out else "the output")
-    tty = sys.stderr.isatty()
+    shown = Progress(sys.stderr, args.states, unit="states")  # a status line on a terminal, else silent
 
     def progress(done, total):
-        if tty:
-            sys.stderr.write(f"\r{done}/{total} states")
-            sys.stderr.flush()
+        shown.step(count=done - shown.ran)
 
     say = (lambda *a, **k: None) if args.json else print
     say(f"{sc.name}: {args.states} initial states uniform in |z_i| <= ({', '.join(f'{b:g}' for b in box)}), "
         f"seed {args.seed}, on the {'ideal chain' if args.on == 'chain' else 'plant ' + sc.plant.model}")
     rows, applies = mc.run_on(args.on, sc, path, args.set, loop, Z0, args.engine, args.workers, args.scheduler,
                               progress)
-    if tty:
-        sys.stderr.write("\n")
+    shown.close()
     summary = mc.summarize(rows, applies)
     applies = summary["bound_applies"]  # not where V1(z0) overflows
     write_table(rows, out / "montecarlo.parquet")

@@ -73,10 +73,11 @@ def holds_slot(run) -> bool:
 
 def _busy(what: str, claim) -> CallbackBusy:
     run, thread = claim
-    return CallbackBusy(f"cannot {what}: MuJoCo's control callback is one slot per process and the callback of "
-                        f"{type(run).__name__} {id(run):#x} (thread {thread.name!r}) is installed; run one "
-                        "simulation of the Python control path at a time per process (threads share the slot: "
-                        "use processes, or Dask workers with --nthreads 1; runs on the native kernel share it)")
+    return CallbackBusy(f"cannot {what}: MuJoCo's control callback is one slot per process and another simulation "
+                        f"holds it ({type(run).__name__} {id(run):#x}, thread {thread.name!r}); a simulation on the "
+                        "Python control path (a law or integrator without a C version, e.g. RK4) needs the slot to "
+                        "itself: start it once the other has finished, or in another process (ftstab sweep --engine "
+                        "batch or processes does either for you); simulations on the native kernel share the slot")
 
 
 @contextmanager

@@ -49,6 +49,7 @@ import numpy as np
 
 from ftstab_mj.config.errors import ParameterError
 from ftstab_mj.plants.base import Plant, check_keys, load_spec, number, register_plant
+from ftstab_mj.plants.callback import control_callback
 
 MODEL = "flexible_joint"
 DEFAULTS = {
@@ -276,6 +277,13 @@ class FlexibleJointPlant(Plant):
         controls are the module docstring's equations, so that d q''/du = d q'''/du = 0 and
         d q''''/du = K b / (J_m M_l) > 0: a chain of r = 4 (5 integrating)."""
         m, d, _ = self.compile(0.001)
+        # its forward passes call MuJoCo's control callback: a Python-path run stepping in another thread
+        # (the batch engine's, a Dask worker's) would take the call for its own and sample this MjData
+        with control_callback(None):  # so they wait for the slot, as a compile does (callback.py)
+            return self._read_constants(m, d, key)
+
+    def _read_constants(self, m, d, key: str) -> dict:
+        """:meth:`constants` of the compiled (m, d), with MuJoCo's control callback slot cleared."""
         jid = {name: mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, self.names[name]) for name in ("link", "motor")}
         self._link_dof, self._motor_dof = (int(m.jnt_dofadr[jid[name]]) for name in ("link", "motor"))
         self._actuator = a = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_ACTUATOR, self.names["actuator"])

@@ -14,19 +14,21 @@ table). A run's result depends on its parameters only, so the table does not dep
   validated (runner.py); a spawned one pays ~0.3 s of CPU to import NumPy, MuJoCo and ftstab_mj.
 - ``dask``: a ``dask.distributed`` cluster, a ``LocalCluster`` of ``workers`` single-threaded
   processes by default, or the scheduler at ``scheduler`` (its workers must have ftstab_mj
-  installed). Processes, not threads: MuJoCo's control callback is one slot per process. A local
-  cluster's workers are forked from a forkserver (:func:`local_worker_method`) that imported
-  distributed and what a row runs once, so a worker starts without paying those imports again.
+  installed). A worker's threads (``dask worker --nthreads T``) each run a chunk at once, as the
+  batch engine's threads do (:func:`run_chunk_beside`). The local cluster stays N processes of one
+  thread: on 2 cores, 96 rows of 2 s on the cart took 0.68 s of wall on 2 workers of 1 thread against
+  1.00 s on 1 worker of 2 threads (medians of 3, load 0.7: a row's set-up is Python, which holds the
+  GIL, so threads of one process overlap only the stepping). A local cluster's workers are forked
+  from a forkserver (:func:`local_worker_method`) that imported distributed and what a row runs
+  once, so a worker starts without paying those imports again.
 
-One simulation at a time per process on the serial, processes and Dask engines (the batch engine's
-threads wait for MuJoCo's callback slot instead, :func:`_batch`): :func:`guarded` holds the process's
-:data:`ftstab_mj.plants.callback.ONE_RUN` lock for the whole run, so on an external cluster whose workers
-have several threads (``dask worker`` starts several by default) the threads of one worker take
-turns, and the table is the serial one. A per-process lock rather than worker resources (a task
-that asks for a resource no worker declares waits for ever) or a refusal of multi-threaded workers
-(the default ``dask worker`` would be refused, and a worker can join the cluster mid-sweep): it
-needs nothing from the cluster's configuration. The cost: a worker process runs one row at a time,
-so its extra threads add no speed (start workers with ``--nthreads 1 --nworkers N`` for N at once).
+One simulation at a time per process on the serial and processes engines: :func:`guarded` holds the
+process's :data:`ftstab_mj.plants.callback.ONE_RUN` lock for the whole run. The threads of the batch engine
+and of a Dask worker run rows :func:`beside` each other instead: no lock, each row waits for MuJoCo's
+callback slot (native-kernel rows share it and step at once, a Python-path row has it alone), so a
+``dask worker`` with several threads (its default) uses them all and the table is still the serial one.
+A process worker runs its chunk on its one thread: on 2 cores, 2 processes already fill both cores, and
+threads inside one process gained nothing on the same rows (``--engine batch --workers 2``: 1.0x serial).
 
 Rows travel in chunks (:func:`chunks`): one engine task runs several rows one after the other, so the
 engine's cost per task (pickling, scheduling, a round trip: ~1 ms on processes, several ms on Dask)
@@ -119,6 +121,25 @@ def run_chunk(task: Callable[[int, tuple], dict], chunk: list[tuple[int, tuple]]
     return [(i, guarded(task, i, params)) for i, params in chunk]
 
 
+def beside(task: Callable[[int, tuple], dict], index: int, params: tuple) -> dict:
+    """:func:`guarded` for a row that runs beside other rows in threads of this process (the batch engine's
+    threads, a Dask worker's): it holds no :data:`ONE_RUN` and waits for MuJoCo's callback slot instead
+    (:func:`~ftstab_mj.plants.callback.waiting_for_slot`), so native-kernel rows step at once and a
+    Python-path row steps alone. Same result as :func:`guarded`."""
+    from contextlib import nullcontext
+
+    from ftstab_mj.plants.callback import waiting_for_slot
+
+    with waiting_for_slot():
+        return guarded(task, index, params, one_run=nullcontext())
+
+
+def run_chunk_beside(task: Callable[[int, tuple], dict], chunk: list[tuple[int, tuple]]) -> list[tuple[int, dict]]:
+    """:func:`run_chunk` with each row run :func:`beside` the rows of the process's other threads: a Dask task,
+    so that a worker's threads (``dask worker --nthreads T``) each run a chunk at once."""
+    return [(i, beside(task, i, params)) for i, params in chunk]
+
+
 def carrying(task, chunk: list[tuple[int, tuple]]):
     """``task.carrying([row indices of chunk])`` where the task has that method, else ``task``."""
     carry = getattr(task, "carrying", None)
@@ -190,13 +211,9 @@ def _batch(items, task, workers: int) -> Iterator[tuple[int, dict | None]]:
     """
     import threading
     from concurrent.futures import FIRST_COMPLETED, ThreadPoolExecutor, wait
-    from contextlib import nullcontext
-
-    from ftstab_mj.plants.callback import waiting_for_slot
 
     def row(i, params):
-        with waiting_for_slot():
-            return i, guarded(task, i, params, one_run=nullcontext())
+        return i, beside(task, i, params)
 
     pending, queue = set(), iter(items)
     stop = threading.Event()
@@ -580,9 +597,9 @@ def _dask(items, task, workers, scheduler, meanwhile=None, ahead: StartedAhead |
     client, cluster = made if made is not None else _dask_connect(workers, scheduler)
     tag = uuid.uuid4().hex[:8]  # keys unique to this sweep on a shared scheduler
     try:
-        if scheduler:  # the cluster's workers now (more may join later)
-            workers = max(1, len(client.scheduler_info().get("workers", {})))
-        futures = {client.submit(run_chunk, carrying(task, chunk), chunk, key=f"ftstab-{tag}-{chunk[0][0]}",
+        if scheduler:  # the cluster's worker threads now (more may join later): each runs a chunk at once
+            workers = max(1, sum(w.get("nthreads", 1) for w in client.scheduler_info().get("workers", {}).values()))
+        futures = {client.submit(run_chunk_beside, carrying(task, chunk), chunk, key=f"ftstab-{tag}-{chunk[0][0]}",
                                  pure=False): chunk
                    for chunk in chunks(items, workers)}
         if meanwhile is not None:

@@ -64,6 +64,77 @@ def _say(stream, text: str) -> None:
         print(text, file=stream, flush=True)
 
 
+class Progress:
+    """Progress of ``total`` items (rows, states) finishing one by one, on ``stream`` (None: silent).
+
+    On a terminal: one status line rewritten in place (carriage return) at most every ``refresh`` s of
+    wall time, ``[done/total] 12.3 rows/s, ~40 s left, 1 failed``, and the lines that must stay (a failed
+    or lost item: :meth:`note`) printed above it. Elsewhere (a log file, a pipe): the plain line of every
+    item as it finishes (:meth:`step`'s ``line``), nothing rewritten. ``done`` counts from ``before``
+    (items finished earlier); rate and ETA are over the items of this call since it started.
+    """
+
+    def __init__(self, stream, total: int, before: int = 0, unit: str = "rows", refresh: float = 0.5,
+                 clock=time.monotonic):
+        self.stream, self.total, self.before, self.unit = stream, total, before, unit
+        self.refresh, self.clock = refresh, clock
+        self.tty = stream is not None and getattr(stream, "isatty", lambda: False)()
+        self.ran, self.failed, self.start, self.shown_at, self.width = 0, 0, clock(), None, 0
+
+    def status(self) -> str:
+        """``[done/total] R unit/s, ~E s left, F failed`` (rate and ETA once an item finished, failures if any)."""
+        text = f"[{self.before + self.ran}/{self.total}]"
+        elapsed, left = self.clock() - self.start, self.total - self.before - self.ran
+        if self.ran and elapsed > 0:
+            rate = self.ran / elapsed
+            eta = left / rate
+            text += (f" {rate:.3g}" if rate < 1000 else f" {rate:.0f}") + f" {self.unit}/s"
+            text += f", ~{eta:.0f} s left" if eta >= 0.5 else ", <1 s left" if left else ""
+        return text + (f", {self.failed} failed" if self.failed else "")
+
+    def step(self, failed: bool = False, line: str | None = None, count: int = 1) -> None:
+        """``count`` items finished (``failed``: one of them not completed); ``line``: its plain log line (on a
+        terminal only a failed item's line is printed, above the status)."""
+        self.ran += count
+        self.failed += bool(failed)
+        if self.stream is None:
+            return
+        if not self.tty:
+            if line is not None:
+                _say(self.stream, line)
+            return
+        if failed and line is not None:
+            self.note(line)
+        elif (self.shown_at is None or self.clock() - self.shown_at >= self.refresh
+              or self.before + self.ran == self.total):
+            self._show()
+
+    def note(self, line: str) -> None:
+        """A line that stays (a failed or lost item), above the status line on a terminal."""
+        if self.stream is None:
+            return
+        if self.tty and self.width:
+            self.stream.write("\r" + " " * self.width + "\r")
+        _say(self.stream, line)
+        if self.tty:
+            self.width = 0
+            self._show()
+
+    def _show(self) -> None:
+        text = self.status()
+        self.stream.write("\r" + text + " " * max(0, self.width - len(text)))
+        self.stream.flush()
+        self.width, self.shown_at = len(text), self.clock()
+
+    def close(self) -> None:
+        """End the status line (terminal), brought up to date: what follows starts on a line of its own."""
+        if self.tty and (self.width or self.ran):
+            self._show()
+            self.stream.write("\n")
+            self.stream.flush()
+            self.width = 0
+
+
 def run_sweep(name: str, rows: list[Row], task, out_dir, identity: dict, *, engine: str = "serial",
               workers: int = 1, scheduler: str | None = None, resume: bool = False, fmt: str = "parquet",
               progress=sys.stderr, ahead=None) -> SweepOutcome:
@@ -71,7 +142,8 @@ def run_sweep(name: str, rows: list[Row], task, out_dir, identity: dict, *, engi
 
     task: picklable, task(index, params) -> {"status", "error", "metrics"}; params: ((key path, value), ...).
     identity: JSON-able description of what every run starts from (part of the fingerprint).
-    progress: stream for one line per finished run (None: silent).
+    progress: stream for the progress (None: silent): one line per finished run, or one status line
+    rewritten in place on a terminal (:class:`Progress`).
     ahead: the engine started ahead (engine.started_ahead), or None.
     """
     t0 = time.perf_counter()
@@ -104,11 +176,12 @@ def run_sweep(name: str, rows: list[Row], task, out_dir, identity: dict, *, engi
     results = execute(((r.index, r.params) for r in todo), task, engine, workers, scheduler,
                       meanwhile=lambda: load_writer(table_path), ahead=ahead)  # imported while the workers run
     first_start = None  # time.time() at the start of the first run (its worker's clock: this machine's, or one kept in step)
+    shown = Progress(progress, len(rows), before=len(done))
     try:
         for i, result in results:
             if result is None:
                 outcome.lost.append(i)
-                _say(progress, f"row {i}: lost (its worker process died); --resume retries it")
+                shown.note(f"row {i}: lost (its worker process died); --resume retries it")
                 continue
             first_start = result["started_at"] if first_start is None else min(first_start, result["started_at"])
             r = by_index[i]
@@ -119,8 +192,9 @@ def run_sweep(name: str, rows: list[Row], task, out_dir, identity: dict, *, engi
             left = len(todo) - outcome.ran - len(outcome.lost)
             eta = (time.perf_counter() - t0) / outcome.ran * left
             err = f": {row['error'].splitlines()[0]}" if row["error"] else ""
-            _say(progress, f"[{len(done)}/{len(rows)}] row {i} {row['status']} in {row['elapsed_s']:.2f} s{err}"
-                           + (f"; {left} to go, ~{eta:.0f} s left" if left else ""))
+            shown.step(row["status"] != COMPLETED,
+                       f"[{len(done)}/{len(rows)}] row {i} {row['status']} in {row['elapsed_s']:.2f} s{err}"
+                       + (f"; {left} to go, ~{eta:.0f} s left" if left else ""))
     except KeyboardInterrupt as exc:
         outcome.interrupted, outcome.signal = True, interruption(exc).signum
     except EngineError:
@@ -130,6 +204,7 @@ def run_sweep(name: str, rows: list[Row], task, out_dir, identity: dict, *, engi
             journal_path.unlink(missing_ok=True)
         raise
     finally:
+        shown.close()
         results.close()  # stops the engine (pool, cluster) even when interrupted
         journal.close()
     if outcome.interrupted:
