@@ -75,9 +75,14 @@ def test_chain_matches_the_numpy_reference_path():
         assert a["V1_final"] == pytest.approx(b["V1_final"], rel=1e-9, abs=1e-15)
 
 
-def test_chain_mode_refuses_a_plant_without_an_exact_chain_twin(tmp_path):
-    res = run_cli("montecarlo", "arm_robust", "--states", "4", "--out", tmp_path / "o")
-    assert res.returncode == 2 and res.stderr.count("\n") == 1 and "--on plant" in res.stderr
+@pytest.mark.parametrize("plant", ["friction=0.5", "damping=0.2"])
+def test_chain_mode_refuses_a_plant_without_an_exact_chain_twin(tmp_path, plant):
+    """A cart with friction or damping is not the ideal chain (its plant declares no exact twin). (The arm is
+    refused likewise, after its bound tables, whose progress lines take seconds of a loaded machine.)"""
+    res = run_cli("montecarlo", "cart_r2_robust", "--set", f"plant.{plant}", "--states", "4",
+                  "--out", tmp_path / "o")
+    assert res.returncode == 2 and res.stderr.count("\n") == 1 and "--on plant" in res.stderr, res.stderr
+    assert plant.replace("=", " = ") in res.stderr  # what makes it no chain is named
     assert res.stdout == ""  # the refusal is the only line: no header printed before it
     assert "Traceback" not in res.stderr and not (tmp_path / "o").exists()
     for bad in (["--states", "0"], ["--states", "3", "--box", "1,2,3"], ["--states", "3", "--box", "1,nan"]):

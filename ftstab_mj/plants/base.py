@@ -145,6 +145,8 @@ class Plant:
       body_names: bodies whose poses are recorded (world excluded).
       phi_units, gamma_units: what the LoopSpec's phi and gamma signals mean for this plant
         (chain units for the carts; a joint torque and a motor gain factor for the arm).
+      exact_chain_twin: True when the plant's loop is exactly the ideal chain z_r' = phi + gamma u
+        (no friction, damping or coupling): ``ftstab montecarlo --on chain`` may run it there.
     """
 
     model_name: str
@@ -161,6 +163,7 @@ class Plant:
     actuator_ids: np.ndarray | None = None  # (n,) actuator of each loop; None: 0..n-1
     notes: tuple | list = ()  # lines to show the user about the model (a saturation kept, ...)
     integrators: tuple = tuple(INTEGRATORS)  # the sim.integrator values this plant runs with
+    exact_chain_twin: bool = False
     # what determines the spec whole, hashable (a package model file and the parameters that edit it),
     # or None (the spec's text is the key): lets :meth:`compile` skip writing the text of a spec seen before
     spec_key: tuple | None = None

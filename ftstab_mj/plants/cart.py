@@ -57,6 +57,7 @@ class CartPlant(Plant):
         if integrating:
             self.params["sensor_refresh"] = refresh
         self.mass, self.friction, self.damping = mass, friction, damping
+        self.exact_chain_twin = not friction and not damping  # the slide is then the chain itself
         self.loop_names = ("cart",)
         self.r = 3 if integrating else 2
         self.integrating = integrating

@@ -58,6 +58,8 @@ def chain_model_xml(r: int) -> str:
 class IdealChainPlant(Plant):
     """The ideal chain of length ``params["r"]`` (default 2), one loop "chain" (module docstring)."""
 
+    exact_chain_twin = True
+
     def __init__(self, model_name: str, params: dict):
         check_keys(model_name, params, ("r",))
         r = params.get("r", 2)

@@ -65,6 +65,11 @@ def settle_times(t: np.ndarray, V1: np.ndarray, level: float) -> np.ndarray:
     return np.where(any_above, out, t[0])
 
 
+def params_text(params: dict) -> str:
+    """A plant's parameters as ``key = value`` pairs (``no parameters`` when empty)."""
+    return ", ".join(f"{k} = {v}" for k, v in params.items()) or "no parameters"
+
+
 def chain_loop(sc, loop: str):
     """(LoopSpec, plant) of the scenario's loop, refusing what has no exact ideal-chain twin."""
     from ftstab_mj.plants import make_plant
@@ -74,12 +79,13 @@ def chain_loop(sc, loop: str):
         raise ScenarioError("montecarlo", "--loop", "a loop of the scenario (" + ", ".join(x.name for x in sc.loops) + ")",
                             repr(loop))
     plant = make_plant(sc.plant.model, sc.plant.params)
-    twin = sc.plant.model == "ideal_chain" or sc.plant.model in ("cart", "cart_integrating") \
-        and not getattr(plant, "friction", 0.0) and not getattr(plant, "damping", 0.0)
-    if not twin or any(stage is not None for stage in (lp.sensor, lp.observer, lp.actuator)):
+    stages = [name for name in ("sensor", "observer", "actuator") if getattr(lp, name) is not None]
+    if not plant.exact_chain_twin or stages:
+        found = (f"plant {sc.plant.model} with {params_text(sc.plant.params)}: not the ideal chain"
+                 if not plant.exact_chain_twin else f"loop {loop} with a {' and '.join(stages)} model")
         raise ScenarioError("montecarlo", "--on chain", "an ideal-chain or frictionless, undamped cart loop without "
                             "sensor, observer or actuator models (its exact twin is the ideal chain); use --on plant",
-                            sc.plant.model)
+                            found)
     return lp, plant
 
 
