@@ -86,12 +86,17 @@ def test_a_second_run_s_callback_is_refused_in_this_thread_and_the_first_run_goe
 
 def test_another_thread_can_neither_install_a_callback_nor_clear_the_slot_while_a_run_steps():
     sim, other = cart_sim(False), cart_sim(False)
+    make_plant("cart").compile(0.001)  # a spec compiled before the run starts (below: reused, no slot needed)
     with sim.installed():
         busy = in_thread(lambda: other.installed().__enter__())
         assert isinstance(busy, CallbackBusy) and "thread 'MainThread'" in str(busy)
-        # compiling clears the slot: from another thread it would take the callback from under the run
-        busy = in_thread(lambda: make_plant("cart").compile(0.001))
+        # compiling a model not compiled before clears the slot (its forward pass would call the callback):
+        # from another thread it would take the callback from under the run. A mass no other test uses.
+        busy = in_thread(lambda: make_plant("cart", {"mass": 1.2345678}).compile(0.001))
         assert isinstance(busy, CallbackBusy) and "clear the control callback (to compile a model)" in str(busy)
+        assert mujoco.get_mjcb_control() is sim.callback
+        # the model of a spec compiled before is reused without a forward pass: no slot needed, none taken
+        assert in_thread(lambda: make_plant("cart").compile(0.001)) is None
         assert mujoco.get_mjcb_control() is sim.callback
         with control_callback(None):  # the run's own thread may compile between two batches
             make_plant("cart").compile(0.001)
