@@ -28,6 +28,7 @@ per-trajectory rows before the next; the plant mode keeps only each run's metric
 
 from __future__ import annotations
 
+import contextlib
 import math
 from dataclasses import dataclass
 
@@ -239,7 +240,12 @@ def run_on(on: str, sc, path, overrides, loop: str, Z0: np.ndarray, engine=None,
     for text in overrides:
         apply_override(raw, text, str(path))
     engine = choose_engine(engine, workers, scheduler)
-    rows = run_plant(ScenarioTask(raw, str(path)), loop, Z0, engine, workers, scheduler, progress)
+    lp = next(x for x in sc.loops if x.name == loop)
+    hong = lp.law(len(lp.z0)).base_info()
+    # the runs' T(z0) from V1(z0) enclosed for every state at once (the same bits; runs in this process)
+    ahead = mt.V1_enclosures_ahead(hong, Z0) if hong else contextlib.nullcontext()
+    with ahead:
+        rows = run_plant(ScenarioTask(raw, str(path)), loop, Z0, engine, workers, scheduler, progress)
     return rows, bool(rows) and all(rw["bound_applies"] for rw in rows)  # each run's own metric
 
 
