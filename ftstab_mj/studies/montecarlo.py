@@ -290,15 +290,16 @@ def json_text(summary: dict) -> str:
 
 
 def figure(rows: list[dict], summary: dict, title: str, path) -> None:
-    """Histogram of settle_time / T(z0) with the guarantee (ratio 1) marked; PNG at ``path``."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    """Histogram of settle_time / T(z0) with the guarantee (ratio 1) marked; PNG at ``path``. Drawn with
+    matplotlib's object API (Figure + Agg canvas): importing pyplot would cost ~0.1 s more CPU, no global state."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
 
     ratio = np.array([r["ratio"] for r in rows], dtype=float)
     ratio = ratio[np.isfinite(ratio)]
-    fig, ax = plt.subplots(figsize=(7, 4))
+    fig = Figure(figsize=(7, 4))
+    FigureCanvasAgg(fig)
+    ax = fig.subplots()
     if len(ratio):
         ax.hist(ratio, bins=min(60, max(10, int(np.sqrt(len(ratio))))), color="#4477aa")
         ax.axvline(1.0, color="#cc3311", lw=1.5, label="guarantee: settle time = T(z0)")
@@ -311,4 +312,3 @@ def figure(rows: list[dict], summary: dict, title: str, path) -> None:
     ax.set_title(f"{title}\n{summary['states']} states, {never} never settled", fontsize=10)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
-    plt.close(fig)
