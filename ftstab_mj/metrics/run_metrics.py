@@ -884,7 +884,8 @@ class _LoopStream:
         self.ext = None  # workspace extremes
         self.entry = self.v_min = self.v_max = None  # eps-ball: entry time, V1 min/max from it on
         self.n_saturated = 0.0
-        self.assumed = AssumedBounds(loop) if bound_applies(loop) else None  # only where a time bound is claimed
+        self.denied = bound_denied(loop)  # the loop's and its certificate's: asked once per run
+        self.assumed = AssumedBounds(loop) if self.denied is None else None  # only where a time bound is claimed
         obs = self.stages["observer"] if self.stages is not None else None
         self.lipschitz = None if obs is None else _LipschitzTracker(loop.r, obs["order"], obs["L"], info.period)
 
@@ -976,7 +977,7 @@ class _LoopStream:
             reasons = reasons + [f"the actuator's {self.clamp} clamped the law's u"]
         if self.assumed is not None and self.assumed.reason:  # the plant's bounds did not hold along the run
             reasons = reasons + [self.assumed.reason]
-        denied = bound_denied(loop)
+        denied = self.denied
         applies = denied is None and not left and not reasons
         why = "; ".join(([denied] if denied else []) + ([f"the plant left the workspace: {left}"] if left else [])
                         + reasons) or None
