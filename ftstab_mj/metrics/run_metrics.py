@@ -26,6 +26,7 @@ from __future__ import annotations
 import bisect
 import contextlib
 import math
+import threading
 import warnings
 
 import numpy as np
@@ -307,6 +308,7 @@ def saturated_time(u, stages: dict, period: float) -> float:
 # {((r, k, gains), shape, z0 bytes): V1(z0) enclosure}: a sweep's rows mostly share the law and z0, and
 # the enclosure of V1(z0) in intervals costs ~2 ms a row (of ~10 on the cart); the most recent last
 _V1_ENCLOSURES: dict = {}
+_V1_LOCK = threading.Lock()  # the batch engine's rows run on threads: two evicting at once would delete one key twice
 V1_ENCLOSURES_KEPT = 256
 # {(r, k, gains): [({z0 bytes: index}, lo (n,), hi (n,))]}: the states of Monte Carlos under way
 # (V1_enclosures_ahead), each state's entry taken by its run
@@ -369,12 +371,14 @@ def _V1_enclosure(hong: dict, rows):
     if ahead is not None:
         return ahead
     key = (args, rows.shape, rows.tobytes()) if rows.size <= 64 else None  # not a Monte Carlo's states
-    kept = _V1_ENCLOSURES.pop(key, None) if key is not None else None
+    with _V1_LOCK:
+        kept = _V1_ENCLOSURES.pop(key, None) if key is not None else None
     V = kept if kept is not None else V1_enclosure(*args, rows)
     if key is not None:
-        _V1_ENCLOSURES[key] = V
-        while len(_V1_ENCLOSURES) > V1_ENCLOSURES_KEPT:
-            del _V1_ENCLOSURES[next(iter(_V1_ENCLOSURES))]
+        with _V1_LOCK:
+            _V1_ENCLOSURES[key] = V
+            while len(_V1_ENCLOSURES) > V1_ENCLOSURES_KEPT:
+                del _V1_ENCLOSURES[next(iter(_V1_ENCLOSURES))]
     return V
 
 
