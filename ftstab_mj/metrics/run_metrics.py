@@ -324,7 +324,7 @@ def _controller_args(hong: dict) -> tuple:
 def V1_enclosures_ahead(hong: dict, Z0):
     """Within the block, a run of Hong's controller ``hong`` (LoopInfo.hong) whose z0 is a row of Z0 (n, r)
     finds the enclosure of V1(z0) computed ahead for all of Z0 at once (a Monte Carlo on the plant: one
-    vectorised call instead of ~1.5 ms per state at r = 2). certificate.V1_enclosure is elementwise (every
+    vectorised call instead of ~1.4 ms per state at r = 2). certificate.V1_enclosure is elementwise (every
     interval operation acts on each element alone), so a row's enclosure is the bits its run would compute
     alone (tests/test_montecarlo.py checks it). A run whose z0 is not in Z0 computes its own."""
     from ftstab_mj.control.certificate import V1_enclosure
