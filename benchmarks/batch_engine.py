@@ -134,8 +134,9 @@ def main() -> None:
         for states in (int(x) for x in args.states.split(",")):
             mc_cpu, bare_cpu = [], []
             for rep in range(args.repeat):
+                out = tmp / f"mc{states}-{rep}"
                 c, _, _ = run(py + ["montecarlo", str(CART), "--on", "plant", "--engine", "batch", "--states",
-                                    str(states), "--set", "sim.duration=2", "--out", str(tmp / f"mc{states}-{rep}")], tmp)
+                                    str(states), "--set", "sim.duration=2", "--out", str(out)], tmp)
                 mc_cpu.append(c)
                 c, _, _ = run([sys.executable, str(bare), str(states), "2.0", "montecarlo"], tmp)
                 bare_cpu.append(c)

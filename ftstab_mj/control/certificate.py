@@ -173,7 +173,8 @@ class Certificate:
     @functools.cached_property
     def _rate(self) -> tuple[Exp, Iv]:
         """(1 - alpha enclosed, c_lower (1 - alpha) enclosed), once per certificate: the exact rationals
-        cost ~0.15 ms, more than the rest of a T(z0); each run's T(z0) and envelope use them (a frozen dataclass: the fields never change)."""
+        cost ~0.15 ms, more than the rest of a T(z0), and each run's T(z0) and envelope use them (a
+        frozen dataclass: the fields never change)."""
         e = exp_of(self._one_minus_alpha())
         return e, Iv(float(self.c_lower)) * e.iv()
 
