@@ -1,16 +1,19 @@
 """The batch engine against the serial one, Monte Carlo on the plant against bare stepping, chain memory.
 
-    python -m benchmarks.batch_engine [--rows 96] [--states 200] [--chain-states 2000] [--long 100] [--repeat 3]
+    python -m benchmarks.batch_engine [--rows 96] [--states 200,1000] [--chain-states 2000] [--long 100] [--repeat 3]
 
 Prints, measured in this one run (alternated, medians of --repeat):
 
 1. ``ftstab sweep`` of --rows rows of 2 s on the r = 2 robust cart (a grid over the disturbance's
    amplitude): CPU s of the whole process (children included) for --engine serial, batch --workers 1
    and batch --workers 2, their ratios to serial, the wall-time speed-up of 2 threads over 1, and
-   whether the three tables agree in every column but the elapsed time.
-2. ``ftstab montecarlo --on plant --engine batch`` on the same cart, --states states of 2 s: CPU s of
-   the whole process against a bare reference, one process that steps the same states (mj_step over
-   the same number of steps on one MjData, reset to each z0) after importing the same modules.
+   whether the three tables agree in every column but the elapsed time; and the floor: one process
+   that imports what ``ftstab sweep`` imports and steps the same rows bare (mj_step, no control, no
+   log, no metrics), as a ratio to the serial sweep (no engine can go below it).
+2. ``ftstab montecarlo --on plant --engine batch`` on the same cart, for each of --states (a list)
+   states of 2 s: CPU s of the whole process against a bare reference, one process that steps the
+   same states (mj_step over the same number of steps on one MjData, reset to each z0) after
+   importing the same modules.
 3. ``ftstab montecarlo --on chain`` of --chain-states states at 10 s and 50 s simulated: the peak RSS
    of each process, and their ratio.
 4. The same sweep with rows of --long s (>= 20 s of row CPU at the default 100 s: set-up amortized):
@@ -31,14 +34,23 @@ CART = ROOT / "scenarios" / "cart_r2_robust.toml"
 
 BARE = """
 import sys, numpy as np, mujoco
-import ftstab_mj.studies.montecarlo, ftstab_mj.scenario.run  # what the command imports
+states, duration, what = int(sys.argv[1]), float(sys.argv[2]), sys.argv[3]
+if what == "sweep":  # what `ftstab sweep` imports (the table's writer too)
+    import ftstab_mj.cli.sweep, ftstab_mj.studies.sweep, ftstab_mj.studies.sweep.row, ftstab_mj.scenario.run
+    from ftstab_mj.studies.sweep.table import load_writer
+    load_writer("table.parquet")
+else:  # what `ftstab montecarlo` imports
+    import ftstab_mj.cli.montecarlo, ftstab_mj.studies.montecarlo, ftstab_mj.scenario.run
 from ftstab_mj.plants import make_plant
 from ftstab_mj.plants.callback import timer_off
 from ftstab_mj.studies import montecarlo as mc
-states, duration = int(sys.argv[1]), float(sys.argv[2])
 plant = make_plant("cart")
 m, d, _ = plant.compile(0.001)
-Z0 = mc.Distribution(states, (1.0, 1.0), seed=0).draw()
+if what == "sweep":  # the sweep's rows all start at the scenario's z0; the Monte Carlo's from its draw
+    from ftstab_mj.scenario import load_scenario
+    Z0 = np.tile(load_scenario(sys.argv[4]).loops[0].z0, (states, 1))
+else:
+    Z0 = mc.Distribution(states, (1.0, 1.0), seed=0).draw()
 steps = int(round(duration / 0.001))
 with timer_off():  # as the runs step (no profiling timer)
     for z in Z0:
@@ -85,7 +97,7 @@ def table(path: Path) -> dict:
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--rows", type=int, default=96)
-    ap.add_argument("--states", type=int, default=200)
+    ap.add_argument("--states", default="200,1000", help="state counts of the Monte Carlo (2.), comma-separated")
     ap.add_argument("--chain-states", type=int, default=2000)
     ap.add_argument("--long", type=float, default=100.0, help="s simulated per row of the speed-up sweep (4.)")
     ap.add_argument("--repeat", type=int, default=3)
@@ -97,7 +109,9 @@ def main() -> None:
         engines = {"serial": [], "batch1": ["--engine", "batch"], "batch2": ["--engine", "batch", "--workers", "2"]}
         cpu = {k: [] for k in engines}
         wall = {k: [] for k in engines}
-        tables = {}
+        tables, floors = {}, []
+        bare = tmp / "bare.py"
+        bare.write_text(BARE)
         for rep in range(args.repeat):
             for name, extra in engines.items():
                 out = tmp / f"{name}{rep}"
@@ -105,27 +119,31 @@ def main() -> None:
                 cpu[name].append(c)
                 wall[name].append(w)
                 tables[name] = table(out / "bench.parquet")
+            floors.append(run([sys.executable, str(bare), str(args.rows), "2.0", "sweep", str(CART)], tmp)[0])
+        floor = statistics.median(floors)
         med = {k: statistics.median(v) for k, v in cpu.items()}
         medw = {k: statistics.median(v) for k, v in wall.items()}
         print(f"1. sweep of {args.rows} rows of 2 s on the cart (load {os.getloadavg()[0]:.2f}), CPU s of the whole "
               f"process: serial {med['serial']:.2f}, batch --workers 1 {med['batch1']:.2f} "
               f"({med['batch1'] / med['serial']:.2f}x serial), batch --workers 2 {med['batch2']:.2f} "
-              f"({med['batch2'] / med['serial']:.2f}x serial; goal <= 0.5x); wall speed-up of 2 threads over 1: "
-              f"{medw['batch1'] / medw['batch2']:.2f}x; tables identical but elapsed time: "
+              f"({med['batch2'] / med['serial']:.2f}x serial; goal <= 0.5x); floor (the sweep's imports and bare "
+              f"stepping of the same rows) {floor:.2f} ({floor / med['serial']:.2f}x serial); wall speed-up of 2 "
+              f"threads over 1: {medw['batch1'] / medw['batch2']:.2f}x; tables identical but elapsed time: "
               f"{tables['batch1'] == tables['serial'] and tables['batch2'] == tables['serial']}")
 
-        mc_cpu, bare_cpu = [], []
-        bare = tmp / "bare.py"
-        bare.write_text(BARE)
-        for rep in range(args.repeat):
-            c, _, _ = run(py + ["montecarlo", str(CART), "--on", "plant", "--engine", "batch", "--states",
-                                str(args.states), "--set", "sim.duration=2", "--out", str(tmp / f"mc{rep}")], tmp)
-            mc_cpu.append(c)
-            c, _, _ = run([sys.executable, str(bare), str(args.states), "2.0"], tmp)
-            bare_cpu.append(c)
-        a, b = statistics.median(mc_cpu), statistics.median(bare_cpu)
-        print(f"2. montecarlo --on plant --engine batch, {args.states} states of 2 s on the cart: {a:.2f} CPU s "
-              f"against {b:.2f} for bare stepping of the same states: {a / b:.2f}x (goal <= 1.4x)")
+        for states in (int(x) for x in args.states.split(",")):
+            mc_cpu, bare_cpu = [], []
+            for rep in range(args.repeat):
+                out = tmp / f"mc{states}-{rep}"
+                c, _, _ = run(py + ["montecarlo", str(CART), "--on", "plant", "--engine", "batch", "--states",
+                                    str(states), "--set", "sim.duration=2", "--out", str(out)], tmp)
+                mc_cpu.append(c)
+                c, _, _ = run([sys.executable, str(bare), str(states), "2.0", "montecarlo"], tmp)
+                bare_cpu.append(c)
+            a, b = statistics.median(mc_cpu), statistics.median(bare_cpu)
+            print(f"2. montecarlo --on plant --engine batch, {states} states of 2 s on the cart (load "
+                  f"{os.getloadavg()[0]:.2f}): {a:.2f} CPU s against {b:.2f} for bare stepping of the same states: "
+                  f"{a / b:.2f}x (goal <= 1.4x)")
 
         peaks = {}
         for duration in (10, 50):

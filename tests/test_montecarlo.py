@@ -161,3 +161,35 @@ def test_the_chain_run_in_pieces_gives_the_rows_of_the_whole_run_and_memory_flat
         peaks.append(tracemalloc.get_traced_memory()[1])
         tracemalloc.stop()
     assert peaks[1] <= 1.2 * peaks[0], peaks  # a whole record would take 5x
+
+
+def test_plant_rows_read_t_z0_enclosed_ahead_and_give_the_rows_of_runs_that_enclose_their_own(monkeypatch):
+    """run_on encloses V1(z0) for the whole draw before the runs (one vectorised call): every run finds its
+    state's entry (none left over), and the rows equal bit for bit those of the same runs computing their own."""
+    from ftstab_mj.studies.sweep.row import ScenarioTask
+
+    path = ROOT / "scenarios" / "cart_r2_robust.toml"
+    sets = ["sim.duration=0.5"]
+    sc = load_scenario(path, sets)
+    Z0 = mc.Distribution(8, (1.0, 1.0), seed=3).draw()
+    left = []
+    run_plant = mc.run_plant
+
+    def watched(*a, **kw):
+        rows = run_plant(*a, **kw)
+        left.append(sum(len(index) for entries in mt._V1_AHEAD.values() for index, _, _ in entries))
+        return rows
+
+    monkeypatch.setattr(mc, "run_plant", watched)
+    ahead, applies = mc.run_on("plant", sc, path, sets, "cart", Z0)
+    assert left == [0] and not mt._V1_AHEAD  # every state's entry taken, the draw forgotten after
+    mt._V1_ENCLOSURES.clear()
+    from ftstab_mj.config.tomlfile import read_toml
+    from ftstab_mj.scenario.loader import apply_override
+
+    raw = read_toml(path, "scenario")
+    apply_override(raw, sets[0], str(path))
+    own = run_plant(ScenarioTask(raw, str(path)), "cart", Z0)
+    assert applies and all(np.isfinite(rw["time_bound"]) for rw in ahead)
+    key = lambda rows: json.dumps(rows, sort_keys=True)  # noqa: E731 - NaN written as NaN: compared too
+    assert key(ahead) == key(own)

@@ -54,9 +54,19 @@ def accuracy_fits(rows: list[dict], grid_path: str, i: int) -> dict:
     return fits
 
 
+def _figure(**kw):
+    """A matplotlib Figure on the Agg canvas (the object API: no pyplot, ~0.1 s of imports less, no global state)."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(**kw)
+    FigureCanvasAgg(fig)
+    return fig
+
+
 def accuracy_figure(name: str, rows: list[dict], grid_path: str):
     """The accuracy figure (matplotlib Figure): panels max |z_1| and, when r > 1, max |z_r|."""
-    import matplotlib.pyplot as plt
+    import matplotlib
     import matplotlib.ticker  # noqa: F401 - matplotlib.ticker below
 
     r = sum(1 for k in rows[0] if k.startswith("final_abs_z"))
@@ -64,9 +74,10 @@ def accuracy_figure(name: str, rows: list[dict], grid_path: str):
     labels = _order(rows)
     legend_h = 0.5 + 0.14 * len(labels)  # inches below the axes for one legend line per law
     height = 3.6 + legend_h
-    fig, axes = plt.subplots(1, len(idx), figsize=(6.0 * len(idx), height), squeeze=False)
+    fig = _figure(figsize=(6.0 * len(idx), height))
+    axes = fig.subplots(1, len(idx), squeeze=False)
     fig.subplots_adjust(left=0.08, right=0.98, top=1.0 - 0.7 / height, bottom=(legend_h + 0.55) / height, wspace=0.3)
-    colors = plt.get_cmap("tab20" if len(labels) > 10 else "tab10")
+    colors = matplotlib.colormaps["tab20" if len(labels) > 10 else "tab10"]
     for ax, i in zip(axes[0], idx):
         for j, (label, (pts, fit)) in enumerate(accuracy_fits(rows, grid_path, i).items()):
             if not pts:
@@ -88,10 +99,9 @@ def accuracy_figure(name: str, rows: list[dict], grid_path: str):
 
 def time_figure(name: str, series: dict, where: str = "", r: int = 2):
     """Small multiples: one row per law, u | |z_1|, shared axes per column (matplotlib Figure)."""
-    import matplotlib.pyplot as plt
-
     n = len(series)
-    fig, axes = plt.subplots(n, 2, figsize=(11, 1.0 + 1.25 * n), sharex=True, sharey="col", squeeze=False)
+    fig = _figure(figsize=(11, 1.0 + 1.25 * n))
+    axes = fig.subplots(n, 2, sharex=True, sharey="col", squeeze=False)
     for (label, s), (au, az) in zip(series.items(), axes):
         au.plot(s["t"], s["u"], lw=0.5, color="C0")
         az.semilogy(s["t"], np.maximum(s["z1"], 1e-16), lw=0.7, color="C1")
@@ -113,12 +123,11 @@ def limit_cycle_figure(name: str, rows: list[dict]):
     """Measured against predicted chattering (matplotlib Figure), one point per run with a
     describing-function prediction: z_1's amplitude (m) and frequency (Hz), measured on the y axis,
     predicted on the x axis, the line y = x and the +-20 % band; None when no row has a prediction."""
-    import matplotlib.pyplot as plt
-
     pts = [r for r in rows if r.get("df_frequency") and r.get("z1_osc_frequency") and r.get("z1_osc_amplitude")]
     if not pts:
         return None
-    fig, axes = plt.subplots(1, 2, figsize=(10, 4.2))
+    fig = _figure(figsize=(10, 4.2))
+    axes = fig.subplots(1, 2)
     labels = _order(pts)
     for ax, (pred, meas, what) in zip(axes, (("df_z1_amplitude", "z1_osc_amplitude", "z_1 amplitude (m or rad)"),
                                              ("df_frequency", "z1_osc_frequency", "frequency (Hz)"))):
@@ -142,26 +151,18 @@ def draw_figures(name: str, rows: list[dict], grid_path: str | None, grid, serie
                  where: str = "") -> list[Path]:
     """Write ``<name>_accuracy.png`` (with a grid of >= 2 values), ``<name>_limit_cycle.png`` (when a
     loop has an actuator lag: :func:`limit_cycle_figure`) and ``<name>_time.png``; their paths."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     paths = []
     r = sum(1 for k in rows[0] if k.startswith("final_abs_z")) if rows else 0
     if grid_path and len(grid) >= 2 and r:
         fig = accuracy_figure(name, rows, grid_path)
         paths.append(Path(out) / f"{name}_accuracy.png")
         fig.savefig(paths[-1], dpi=110, bbox_inches="tight")
-        plt.close(fig)
     fig = limit_cycle_figure(name, rows) if rows else None
     if fig is not None:
         paths.append(Path(out) / f"{name}_limit_cycle.png")
         fig.savefig(paths[-1], dpi=100, bbox_inches="tight")
-        plt.close(fig)
     if series:
         fig = time_figure(name, series, where, r=max(r, 1))
         paths.append(Path(out) / f"{name}_time.png")
         fig.savefig(paths[-1], dpi=90, bbox_inches="tight")
-        plt.close(fig)
     return paths

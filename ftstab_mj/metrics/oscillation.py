@@ -69,7 +69,21 @@ def oscillation(x, period: float, cycle: float | None = None) -> dict:
     # each cycle's max and min, y[up[k]:up[k+1]], in one pass (reduceat: the last slice ends at up[-1])
     head = y[:up[-1]]
     half_pp = 0.5 * (np.maximum.reduceat(head, up[:-1]) - np.minimum.reduceat(head, up[:-1]))
-    return {"amplitude": float(np.median(half_pp)), "frequency": float(freq)}
+    return {"amplitude": _median(half_pp), "frequency": float(freq)}
+
+
+def _median(x) -> float:
+    """np.median(x) of a 1-d float array, bit for bit (the mean of the one or two middle values, a sum
+    from +0.0 divided by their count), without its generic machinery (~35 us a call, twice a run);
+    np.median itself where x holds NaN."""
+    n = len(x)
+    if n == 0 or np.isnan(x).any():
+        return float(np.median(x))
+    h = n // 2
+    if n % 2:
+        return float((0.0 + np.partition(x, h)[h]) / 1.0)
+    p = np.partition(x, (h - 1, h))
+    return float((0.0 + p[h - 1] + p[h]) / 2.0)
 
 
 def oscillation_metrics(z1, u, period: float, z1_z2_abs_sum: float | None) -> dict:
