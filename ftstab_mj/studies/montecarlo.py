@@ -201,7 +201,7 @@ class _Settle:
 
 
 def run_plant(task, loop: str, Z0: np.ndarray, engine="serial", workers=1, scheduler=None, progress=None) -> list[dict]:
-    """Per-trajectory rows from runs of the scenario (sweep.row.ScenarioTask ``task``) with
+    """Per-trajectory rows from runs of the scenario (sweep.row.ScenarioTask or StatesTask ``task``) with
     ``loops.<loop>.z0`` set to each row of Z0, on a sweep engine; the metrics are those of ``ftstab run``."""
     from ftstab_mj.studies.sweep.engine import execute
 
@@ -240,7 +240,7 @@ def run_on(on: str, sc, path, overrides, loop: str, Z0: np.ndarray, engine=None,
     from ftstab_mj.config.tomlfile import read_toml
     from ftstab_mj.scenario.loader import apply_override
     from ftstab_mj.studies.sweep.engine import choose_engine
-    from ftstab_mj.studies.sweep.row import ScenarioTask
+    from ftstab_mj.studies.sweep.row import ScenarioTask, StatesTask
 
     raw = read_toml(path, "scenario file (.toml)")
     for text in overrides:
@@ -251,7 +251,9 @@ def run_on(on: str, sc, path, overrides, loop: str, Z0: np.ndarray, engine=None,
     # the runs' T(z0) from V1(z0) enclosed for every state at once (the same bits; runs in this process)
     ahead = mt.V1_enclosures_ahead(hong, Z0) if hong else contextlib.nullcontext()
     with ahead:
-        rows = run_plant(ScenarioTask(raw, str(path)), loop, Z0, engine, workers, scheduler, progress)
+        # each state a run of the scenario, on one simulation per thread reset to its z0 (StatesTask)
+        rows = run_plant(StatesTask(ScenarioTask(raw, str(path)), loop), loop, Z0, engine, workers, scheduler,
+                         progress)
     return rows, bool(rows) and all(rw["bound_applies"] for rw in rows)  # each run's own metric
 
 
