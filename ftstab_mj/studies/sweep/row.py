@@ -138,6 +138,7 @@ def prepare(sweep: Sweep, rows, overrides=(), logs_dir=None) -> tuple[ScenarioTa
 
 # {task token: _States or None (the task's states take the full path)}: each thread's prepared simulation
 _STATES = threading.local()
+BATCH_SAMPLES = 20_000  # samples of a state's batch (~3 MB on the cart): a run of up to 20 s at 1 ms in one
 
 
 @dataclass(frozen=True)
@@ -222,7 +223,9 @@ class _States:
 
         sim, s = self.sim, self.sc.sim
         sim.reset([z])
-        run = Run(sim, s.duration, metric_settings=self.sc.metrics)
+        # the whole run as one batch up to BATCH_SAMPLES (the samples and metrics do not depend on the batches:
+        # fewer batches, less of the per-batch work in Python)
+        run = Run(sim, s.duration, batch_size=BATCH_SAMPLES, metric_settings=self.sc.metrics)
         result, metrics = record(run, (), metrics=True, selection=GUARANTEE_METRICS)
         if result.status == INTERRUPTED:  # as ScenarioTask: not a result of this row, stop the Monte Carlo
             raise KeyboardInterrupt
