@@ -230,3 +230,23 @@ def test_plant_states_on_one_reset_simulation_give_the_metrics_of_ftstab_run(nam
             assert full["status"] == "diverged" and 100 < full["n_samples"] < 600
         if i == 0 or (i == 4 and name == "cart_r2_robust"):  # through the lag, state 4 has not settled by 0.6 s
             assert full["status"] == "completed" and lean["settle_time"] is not None
+
+
+def test_plant_states_on_the_python_control_path_take_the_full_run():
+    """RK4 has no native kernel: a simulation on the Python path is not reset, each state is the full run
+    (every metric of ``ftstab run``, not the guarantee's selection), equal to run_scenario's."""
+    from ftstab_mj.config.tomlfile import read_toml
+    from ftstab_mj.scenario.loader import apply_override
+    from ftstab_mj.scenario.run import run_scenario
+    from ftstab_mj.studies.sweep.row import ScenarioTask, StatesTask
+
+    path = ROOT / "scenarios" / "cart_r2_robust.toml"
+    sets = ["sim.duration=0.2", "sim.integrator=rk4"]
+    raw = read_toml(path, "scenario")
+    for text in sets:
+        apply_override(raw, text, str(path))
+    task = StatesTask(ScenarioTask(raw, str(path)), "cart")
+    for i, z in enumerate([[0.5, -0.1], [0.2, 0.3]]):
+        got = task(i, (("loops.cart.z0", z),))["metrics"]["loops"]["cart"]
+        full = run_scenario(load_scenario(path, sets + [f"loops.cart.z0=[{z[0]!r}, {z[1]!r}]"])).metrics
+        assert set(got) > set(mt.GUARANTEE_METRICS) and json.dumps(got) == json.dumps(full["loops"]["cart"])
