@@ -19,11 +19,13 @@ Two ways to run the trajectories ("on"):
   take phi and gamma in chain units, so a frictionless, undamped cart scenario has the chain as its
   exact twin (up to MuJoCo's rounding); other plants are refused for this mode.
 * ``"plant"``: each state is a run of the scenario with ``loops.<loop>.z0`` set, on the sweep
-  engines (serial, local processes or a Dask cluster): the metrics are exactly those ``ftstab run``
-  prints for that z0.
+  engines (serial, threads, local processes or a Dask cluster): the metrics are exactly those ``ftstab run``
+  prints for that z0. Each thread validates the scenario once and runs its states on one simulation reset
+  to each z0, computing only the metrics kept here (sweep.row.StatesTask; the full run where it cannot).
 
 Memory stays flat: the chain mode records one chunk of states at a time and reduces it to the
-per-trajectory rows before the next; the plant mode keeps only each run's metrics.
+per-trajectory rows before the next; the plant mode keeps only each run's metrics (and, per thread, the
+samples of one run up to sweep.row.BATCH_SAMPLES, then batch by batch).
 """
 
 from __future__ import annotations
