@@ -201,7 +201,7 @@ def test_plant_states_on_one_reset_simulation_give_the_metrics_of_ftstab_run(nam
     gives, bit for bit, the metrics ``ftstab run`` computes for that z0 (run_scenario: a new scenario,
     simulation and full MetricsStream each): states that settle, one that does not within the run, one
     that diverges mid-run (|z| passes the scenario's divergence limit, 1000), the next one after it (the reset undoes
-    the divergence), and one the file's checks refuse (|z0| > 1e9: the full path's failure)."""
+    the divergence), and states the file's checks refuse (|z0| > 1e9: the full path's failure), the first one too."""
     from ftstab_mj.config.tomlfile import read_toml
     from ftstab_mj.scenario.loader import apply_override
     from ftstab_mj.scenario.run import run_scenario
@@ -213,10 +213,10 @@ def test_plant_states_on_one_reset_simulation_give_the_metrics_of_ftstab_run(nam
     raw = read_toml(path, "scenario")
     apply_override(raw, sets[0], str(path))
     task = StatesTask(ScenarioTask(raw, str(path)), "cart")
-    states = [[0.01, -0.02], [1.0, 0.0], [-0.3, 0.7], [900.0, 900.0], [0.02, 0.01], [2e9, 0.0]]
+    states = [[2e9, 0.0], [0.01, -0.02], [1.0, 0.0], [-0.3, 0.7], [900.0, 900.0], [0.02, 0.01], [-3e9, 1.0]]
     for i, z in enumerate(states):
         got = guarded(task, i, (("loops.cart.z0", z),))
-        if i == 5:  # refused by the loader, as a full run of that state is
+        if abs(z[0]) > 1e9:  # refused by the loader, as a full run of that state is (first: nothing prepared yet)
             assert got["status"] == "failed" and "z0[0]" in got["error"]
             continue
         full = run_scenario(load_scenario(path, sets + [f"loops.cart.z0=[{z[0]!r}, {z[1]!r}]"])).metrics
@@ -224,11 +224,11 @@ def test_plant_states_on_one_reset_simulation_give_the_metrics_of_ftstab_run(nam
         lean, whole = got["metrics"]["loops"]["cart"], full["loops"]["cart"]
         assert set(lean) == set(mt.GUARANTEE_METRICS) | {"law", "n_samples"}
         assert json.dumps(lean) == json.dumps({k: whole[k] for k in lean}), (i, z)
-        if i == 1:
+        if i == 2:
             assert lean["settle_time"] is None  # 0.6 s is too short from z0 = (1, 0)
-        if i == 3:
+        if i == 4:
             assert full["status"] == "diverged" and 100 < full["n_samples"] < 600
-        if i == 0 or (i == 4 and name == "cart_r2_robust"):  # through the lag, state 4 has not settled by 0.6 s
+        if i == 1 or (i == 5 and name == "cart_r2_robust"):  # through the lag, state 5 has not settled by 0.6 s
             assert full["status"] == "completed" and lean["settle_time"] is not None
 
 

@@ -173,8 +173,11 @@ def _thread_states(task: StatesTask, index: int, params):
     """This thread's :class:`_States` of ``task`` (made from row ``index`` on first use; None: the full path)."""
     kept = getattr(_STATES, "by_token", None)
     if kept is None or task.token not in kept:
-        _STATES.by_token = kept = {}  # one Monte Carlo at a time per thread: the previous one's is dropped
-        kept[task.token] = _States.of(task, index, params)
+        try:
+            states = _States.of(task, index, params)
+        except ScenarioError:
+            return None  # this state is refused (the full path says so): the next state prepares them
+        _STATES.by_token = kept = {task.token: states}  # one Monte Carlo at a time per thread: the last one's dropped
     return kept[task.token]
 
 
@@ -187,16 +190,13 @@ class _States:
 
     @classmethod
     def of(cls, task: StatesTask, index: int, params):
-        """The prepared states of ``task`` (row ``index`` validated as the full path would), or None where
-        they must take the full path (see StatesTask)."""
+        """The prepared states of ``task`` (row ``index`` validated as the full path would; ScenarioError where
+        that row is refused), or None where they must take the full path (see StatesTask)."""
         from ftstab_mj.plants import make_plant
         from ftstab_mj.scenario.plugins import ensure
         from ftstab_mj.simulation.run_loop import Simulation
 
-        try:
-            sc = task.full.scenario(index, params)
-        except ScenarioError:
-            return None  # this state is refused: the full path says so, and each later state is checked there
+        sc = task.full.scenario(index, params)  # ScenarioError: this state is refused
         ref = getattr(sc.loops[0], "reference", None)
         if len(sc.loops) != 1 or sc.loops[0].name != task.loop or (ref is not None and not ref.constant):
             return None
