@@ -583,6 +583,13 @@ def _finite_or_nan(a):
 
 # -- streaming: the metrics of a run as its batches arrive ------------------------------------------
 
+# Theorem 1's guarantee along one run: what a Monte Carlo keeps of each trajectory (a MetricsStream
+# selection), and the recorded fields they are computed from
+GUARANTEE_METRICS = ("z0", "V1_initial", "V1_final", "settle_level", "settle_time", "time_bound",
+                     "workspace_left", "bound_applies", "bound_applies_reason", "u_max_abs")
+_GUARANTEE_FIELDS = frozenset(("t", "z", "u", "V1", "phi", "gamma", "u_applied"))
+
+
 class _SettleTracker:
     """:func:`settle_time` on a stream: the last sample above the level and the time of the one after."""
 
@@ -870,8 +877,9 @@ class _LoopStream:
     ring row is t, z (r), u, V1, phi_hat and, with stages, z_hat (r), u_applied.
     """
 
-    def __init__(self, info: RunInfo, loop, n_total: int | None):
+    def __init__(self, info: RunInfo, loop, n_total: int | None, selection: tuple | None = None):
         self.info, self.loop = info, loop
+        self.selection = selection  # None: every metric; else only these keys (GUARANTEE_METRICS)
         ms = info.metric_settings
         ultimate = _ultimate_bound(loop)
         self.eps = float(ultimate["eps"]) if ultimate else ms.settle_level
@@ -880,8 +888,8 @@ class _LoopStream:
         self.n = 0
         self.stages = getattr(loop, "stages", None)
         self.clamp = getattr(loop, "clamp", None) if self.stages is None else None  # u_applied without stages
-        self.ring = _Ring(4 + loop.r + (loop.r + 1 if self.stages is not None else 1 if self.clamp else 0),
-                          self._window(n_total or 0))
+        self.ring = None if selection is not None else _Ring(
+            4 + loop.r + (loop.r + 1 if self.stages is not None else 1 if self.clamp else 0), self._window(n_total or 0))
         self.first = self.last = None
         self.abs_sum, self.sq_sum = _BlockSum(), _BlockSum()
         self.u_max = self.phi_hat_max = self.u_applied_max = None
@@ -894,25 +902,32 @@ class _LoopStream:
         self.lipschitz = None if obs is None else _LipschitzTracker(loop.r, obs["order"], obs["L"], info.period)
 
     def update(self, arrays: dict) -> None:
-        a = {k: _finite_or_nan(v) for k, v in arrays.items()}
+        # a selection reads only the fields its metrics need (the same conversion, field by field)
+        a = {k: _finite_or_nan(v) for k, v in arrays.items()
+             if self.selection is None or k in _GUARANTEE_FIELDS}
         t, V1, u, z = a["t"], a["V1"], a["u"], a["z"]
         m = len(t)
         if m == 0:
             return
         if self.n == 0:
             self.first = {"t": float(t[0]), "z": z[0].copy(), "V1": float(V1[0])}
-        self.last = {"V1": V1[-1], "phi_hat": a["phi_hat"][-1]}
+        self.last = {"V1": V1[-1], "phi_hat": a["phi_hat"][-1] if "phi_hat" in a else None}
         self.settle.update(self.n, t, V1)
-        self.settle_z1.update(self.n, t, np.abs(z[:, 0]))
-        self.abs_sum.update(np.abs(u))
-        with np.errstate(over="ignore"):  # |u| > 1e154 (a diverging run): the effort is inf, said by its value
-            self.sq_sum.update(u * u)
         self.u_max = _nan_max(self.u_max, np.max(np.abs(u)))
-        self.phi_hat_max = _nan_max(self.phi_hat_max, np.max(a["phi_hat"]))
         if self.assumed is not None and "phi" in a:  # a stream without the true phi, gamma has nothing to check
             self.assumed.update(t, a["phi"], a["gamma"])
         ext = extremes(z, u)
         self.ext = ext if self.ext is None else np.array([np.fmin(self.ext[0], ext[0]), *np.fmax(self.ext[1:], ext[1:])])
+        if self.selection is not None:  # what bound_applies needs of an actuator that clamps, nothing more
+            if self.clamp:
+                self.n_saturated += float(np.count_nonzero(a["u_applied"] != u))
+            self.n += m
+            return
+        self.settle_z1.update(self.n, t, np.abs(z[:, 0]))
+        self.abs_sum.update(np.abs(u))
+        with np.errstate(over="ignore"):  # |u| > 1e154 (a diverging run): the effort is inf, said by its value
+            self.sq_sum.update(u * u)
+        self.phi_hat_max = _nan_max(self.phi_hat_max, np.max(a["phi_hat"]))
         if self.entry is None:
             inside = np.flatnonzero(V1 <= self.eps)
             if inside.size:
@@ -964,18 +979,14 @@ class _LoopStream:
         ring.close()
         return fw
 
-    def result(self) -> dict:
-        loop, info, n = self.loop, self.info, self.n
-        out = {"law": loop.law, "n_samples": n}
-        if n == 0:
-            return out
-        ms, h = info.metric_settings, info.period
-        fw = self._final_window()
-        ts = self.settle.result(n, self.first["t"])
+    def _guarantee(self) -> tuple[dict, list[str]]:
+        """The metrics of Theorem 1's guarantee (GUARANTEE_METRICS) and the stages' and the run's reasons
+        why it does not apply."""
+        loop, ms = self.loop, self.info.metric_settings
+        ts = self.settle.result(self.n, self.first["t"])
         tb = time_bound(loop, self.first["z"])
         left = _workspace_text(loop, self.ext)
-        stages = self.stages
-        reasons = stage_reasons(stages)
+        reasons = stage_reasons(self.stages)
         # the true bounds only hold inside the workspace; the stages may break the theorems' assumptions
         if self.clamp and self.n_saturated:  # the plant's actuator clamped the law: its guarantee does not hold
             reasons = reasons + [f"the actuator's {self.clamp} clamped the law's u"]
@@ -985,19 +996,39 @@ class _LoopStream:
         applies = denied is None and not left and not reasons
         why = "; ".join(([denied] if denied else []) + ([f"the plant left the workspace: {left}"] if left else [])
                         + reasons) or None
-        u_win = fw.u[:fw.m]
-        out.update({
+        return {
             "z0": [_num(x) for x in self.first["z"]],
             "V1_initial": _num(self.first["V1"]),
             "V1_final": _num(self.last["V1"]),
             "settle_level": ms.settle_level,
             "settle_time": ts,
-            # the same definition on |z_1| (law-independent: a rival law may have no V1)
-            "settle_time_z1": self.settle_z1.result(n, self.first["t"]),
             "time_bound": tb,
             "workspace_left": left,
             "bound_applies": applies,
             "bound_applies_reason": why,  # always a phrase when bound_applies is false
+            "u_max_abs": _num(self.u_max),
+        }, reasons
+
+    def result(self) -> dict:
+        loop, info, n = self.loop, self.info, self.n
+        out = {"law": loop.law, "n_samples": n}
+        if n == 0:
+            return out
+        guarantee, reasons = self._guarantee()
+        if self.selection is not None:
+            out.update({k: guarantee[k] for k in self.selection})
+            return out
+        ms, h = info.metric_settings, info.period
+        fw = self._final_window()
+        ts, tb, applies = guarantee["settle_time"], guarantee["time_bound"], guarantee["bound_applies"]
+        left, stages = guarantee["workspace_left"], self.stages
+        u_win = fw.u[:fw.m]
+        g = guarantee
+        out.update({  # in the order the metrics have always had (a sweep table's columns follow it)
+            **{k: g[k] for k in ("z0", "V1_initial", "V1_final", "settle_level", "settle_time")},
+            # the same definition on |z_1| (law-independent: a rival law may have no V1)
+            "settle_time_z1": self.settle_z1.result(n, self.first["t"]),
+            **{k: g[k] for k in ("time_bound", "workspace_left", "bound_applies", "bound_applies_reason")},
             "beat_bound": (bool(ts <= tb) if applies and ts is not None and tb is not None else None),
             "final_window_start": fw.start,
             "final_abs_z_max": [_num(x) for x in fw.z_max],  # final_abs_max, a running max
@@ -1008,7 +1039,7 @@ class _LoopStream:
             # effort(u, h), summed in blocks (_BlockSum)
             "effort_abs": _num(h * self.abs_sum.result()),
             "effort_sq": _num(h * self.sq_sum.result()),
-            "u_max_abs": _num(self.u_max),
+            "u_max_abs": g["u_max_abs"],
             "eps": self.eps,
             "eps_entry_time": self.entry,  # eps_ball(t, V1, eps), batch by batch
             "V1_min_after_entry": None if self.entry is None else _num(self.v_min),
@@ -1063,15 +1094,17 @@ class MetricsStream:
     for the final-window ones: in memory up to 1 MiB, beyond in a temporary file (_Ring). At the end the
     window is read back and reduced; only its u (and u_applied) is held whole, for the chattering
     indices. n_total (a hint: None when unknown, e.g. a log read as it streams) sizes the ring at once.
+    ``selection`` (:data:`GUARANTEE_METRICS`, None: all): only those metrics of each loop (with ``law`` and
+    ``n_samples``), the same values as in the whole set, from only what they need (no ring, no final window).
     Equal to :func:`compute_metrics` of the concatenated arrays (a replay) bit for bit, whatever the
     batches; against the definitions on whole arrays (effort's np.sum) effort_abs and effort_sq agree to
     rounding (exactly up to 32768 samples, _BlockSum), as does estimation_error_rms of an r = 1 loop;
     every other metric exactly.
     """
 
-    def __init__(self, info: RunInfo, n_total: int | None = None):
+    def __init__(self, info: RunInfo, n_total: int | None = None, selection: tuple | None = None):
         self.info = info
-        self.loops = {lp.name: _LoopStream(info, lp, n_total) for lp in info.loops}
+        self.loops = {lp.name: _LoopStream(info, lp, n_total, selection) for lp in info.loops}
 
     def update(self, loops: dict) -> None:
         for name, stream in self.loops.items():

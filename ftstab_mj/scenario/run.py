@@ -30,12 +30,13 @@ class ScenarioRun:
     metrics: dict
 
 
-def record(run, sinks=(), metrics: bool = False, progress=None):
+def record(run, sinks=(), metrics: bool = False, progress=None, selection: tuple | None = None):
     """Drive ``run`` (a ftstab_mj.simulation.run_loop.Run) to its end with every sink observing it: open with
     run.info, write each batch, then close with the status and, with ``metrics``, the metrics streamed
     from the batches (ftstab_mj.metrics.run_metrics.MetricsStream; {} without). Returns (RunResult, metrics dict).
     With ``metrics`` the loops' certificates are computed first, before any sink is opened
-    (metrics.run_certificates; progress(text) now and then while one is computed).
+    (metrics.run_certificates; progress(text) now and then while one is computed). ``selection``: only
+    those metrics of each loop (MetricsStream's; a Monte Carlo keeps run_metrics.GUARANTEE_METRICS).
 
     A signal (Ctrl-C, SIGTERM, SIGHUP: ftstab_mj.simulation.interrupts) ends the run "interrupted" (the
     samples of the batch cut short are written, metrics computed, sinks closed). It never cuts the
@@ -49,7 +50,7 @@ def record(run, sinks=(), metrics: bool = False, progress=None):
 
     if metrics:  # before any log is opened (inside interrupts.critical() a signal would wait for it)
         run_certificates(run.info, progress)
-    stream = MetricsStream(run.info, run.n_total) if metrics else None
+    stream = MetricsStream(run.info, run.n_total, selection) if metrics else None
     opened = []
 
     def emit(batch):  # in the run's critical block: the stream and the logs get each batch whole

@@ -138,8 +138,6 @@ class Simulation:
         slices = tuple(slice(int(a), int(b)) for a, b in zip(ends[:-1], ends[1:]))
         self.state_slices, self.stage_slices = slices[:n], slices[n:]
         self.model, self.data, self.model_xml = plant.compile(physics_step, integrator, nuserdata=int(ends[-1]))
-        for law, sl in zip(self.laws, self.state_slices):
-            self.data.userdata[sl] = law.initial_state()
         self.integrator = integrator
         # the references: a set point (``ref``, or a constant [reference]) or ref(t) to track
         self.references = tuple(getattr(L, "reference", None) for L in self.loops)
@@ -147,12 +145,7 @@ class Simulation:
                               for L, ref in zip(self.loops, self.references)])
         self._tracking = any(ref is not None and not ref.constant for ref in self.references)
         self._R = None  # per batch: the references' table (advance)
-        z0 = np.array([L.z0 if len(L.z0) else np.zeros(r) for L in self.loops], dtype=float)
-        if self._tracking:  # q^(j)(0) = ref^(j)(0) + z0_(j+1)
-            R0 = self._reference_table(np.zeros(1))[0]
-            plant.set_initial(self.model, self.data, R0[:, 0] + z0[:, 0], z0 + R0[:, :r])
-        else:
-            plant.set_initial(self.model, self.data, self.refs + z0[:, 0], z0)
+        self._set_initial()
         self._body_ids = np.array([mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_BODY, b)
                                    for b in plant.body_names], dtype=int)
         self._z = np.empty((n, r))
@@ -174,6 +167,35 @@ class Simulation:
         self._native = self._native_run(native)
         # one object, so "is it installed" is an identity test
         self.callback = self._control if self._native is None else self._native.callback
+
+    def _set_initial(self) -> None:
+        """The state at t = 0 on a fresh (or reset) MjData: each law's initial state in userdata (the stages'
+        state starts at sample 0), the plant at the loops' z0 (a tracked reference: q^(j)(0) = ref^(j)(0) + z0_(j+1))."""
+        for law, sl in zip(self.laws, self.state_slices):
+            self.data.userdata[sl] = law.initial_state()
+        z0 = np.array([L.z0 if len(L.z0) else np.zeros(self.plant.r) for L in self.loops], dtype=float)
+        if self._tracking:
+            R0 = self._reference_table(np.zeros(1))[0]
+            self.plant.set_initial(self.model, self.data, R0[:, 0] + z0[:, 0], z0 + R0[:, :self.plant.r])
+        else:
+            self.plant.set_initial(self.model, self.data, self.refs + z0[:, 0], z0)
+
+    def reset(self, z0) -> None:
+        """Start again at t = 0 from the loops' initial states ``z0`` (n, r), each loop's z0 replaced: the
+        run that follows is that of a new Simulation of these loops with those z0, bit for bit (the MjData
+        reset as a new one is made, plants.base.release_data; the stages' state restarts at sample 0).
+        For the native kernel only (a Monte Carlo's states; the Python path keeps more per-run state)."""
+        from dataclasses import replace
+
+        if self._native is None:
+            raise RuntimeError("Simulation.reset: the Python control path cannot be reset; make a new Simulation")
+        z0 = np.asarray(z0, dtype=float)
+        if z0.shape != (self.plant.n, self.plant.r) or not np.all(np.isfinite(z0)):
+            raise ParameterError("z0", f"{self.plant.n} x {self.plant.r} finite numbers", z0)
+        mujoco.mj_resetData(self.model, self.data)
+        self.loops = tuple(replace(L, z0=tuple(float(x) for x in z)) for L, z in zip(self.loops, z0))
+        self._set_initial()
+        self._rec, self._row, self._pending, self.stop_reason = None, -1, False, ""
 
     def release(self) -> None:
         """Done with this simulation: its MjData serves the next simulation of the same model

@@ -19,11 +19,13 @@ Two ways to run the trajectories ("on"):
   take phi and gamma in chain units, so a frictionless, undamped cart scenario has the chain as its
   exact twin (up to MuJoCo's rounding); other plants are refused for this mode.
 * ``"plant"``: each state is a run of the scenario with ``loops.<loop>.z0`` set, on the sweep
-  engines (serial, local processes or a Dask cluster): the metrics are exactly those ``ftstab run``
-  prints for that z0.
+  engines (serial, threads, local processes or a Dask cluster): the metrics are exactly those ``ftstab run``
+  prints for that z0. Each thread validates the scenario once and runs its states on one simulation reset
+  to each z0, computing only the metrics kept here (sweep.row.StatesTask; the full run where it cannot).
 
 Memory stays flat: the chain mode records one chunk of states at a time and reduces it to the
-per-trajectory rows before the next; the plant mode keeps only each run's metrics.
+per-trajectory rows before the next; the plant mode keeps only each run's metrics (and, per thread, the
+samples of one run up to sweep.row.BATCH_SAMPLES, then batch by batch).
 """
 
 from __future__ import annotations
@@ -201,7 +203,7 @@ class _Settle:
 
 
 def run_plant(task, loop: str, Z0: np.ndarray, engine="serial", workers=1, scheduler=None, progress=None) -> list[dict]:
-    """Per-trajectory rows from runs of the scenario (sweep.row.ScenarioTask ``task``) with
+    """Per-trajectory rows from runs of the scenario (sweep.row.ScenarioTask or StatesTask ``task``) with
     ``loops.<loop>.z0`` set to each row of Z0, on a sweep engine; the metrics are those of ``ftstab run``."""
     from ftstab_mj.studies.sweep.engine import execute
 
@@ -240,7 +242,7 @@ def run_on(on: str, sc, path, overrides, loop: str, Z0: np.ndarray, engine=None,
     from ftstab_mj.config.tomlfile import read_toml
     from ftstab_mj.scenario.loader import apply_override
     from ftstab_mj.studies.sweep.engine import choose_engine
-    from ftstab_mj.studies.sweep.row import ScenarioTask
+    from ftstab_mj.studies.sweep.row import ScenarioTask, StatesTask
 
     raw = read_toml(path, "scenario file (.toml)")
     for text in overrides:
@@ -251,7 +253,9 @@ def run_on(on: str, sc, path, overrides, loop: str, Z0: np.ndarray, engine=None,
     # the runs' T(z0) from V1(z0) enclosed for every state at once (the same bits; runs in this process)
     ahead = mt.V1_enclosures_ahead(hong, Z0) if hong else contextlib.nullcontext()
     with ahead:
-        rows = run_plant(ScenarioTask(raw, str(path)), loop, Z0, engine, workers, scheduler, progress)
+        # each state a run of the scenario, on one simulation per thread reset to its z0 (StatesTask)
+        rows = run_plant(StatesTask(ScenarioTask(raw, str(path)), loop), loop, Z0, engine, workers, scheduler,
+                         progress)
     return rows, bool(rows) and all(rw["bound_applies"] for rw in rows)  # each run's own metric
 
 

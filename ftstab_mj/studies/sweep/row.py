@@ -17,6 +17,8 @@ rows (:meth:`ScenarioTask.carrying`: ~1.4 KB a row, where validating again costs
 
 from __future__ import annotations
 
+import math
+import threading
 import uuid
 from pathlib import Path
 import weakref
@@ -132,3 +134,100 @@ def prepare(sweep: Sweep, rows, overrides=(), logs_dir=None) -> tuple[ScenarioTa
     _PREPARED[task.token] = kept
     weakref.finalize(task, _PREPARED.pop, task.token, None)  # the kept scenarios live as long as the task
     return task, {"base": raw}
+
+
+# {task token: _States or None (the task's states take the full path)}: each thread's prepared simulation
+_STATES = threading.local()
+BATCH_SAMPLES = 20_000  # samples of a state's batch (~3 MB on the cart): a run of up to 20 s at 1 ms in one
+
+
+@dataclass(frozen=True)
+class StatesTask:
+    """A Monte Carlo's row task on the plant: row ``index`` is the scenario of ``full`` (a ScenarioTask)
+    with ``loops.<loop>.z0`` = params' one value; the result is ``full``'s, the loop's metrics restricted
+    to :data:`~ftstab_mj.metrics.run_metrics.GUARANTEE_METRICS` (what a Monte Carlo keeps), bit for bit.
+
+    Only z0 changes from one state to the next, so each thread (of an engine's worker) validates the
+    scenario once and builds its simulation once (:class:`_States`), then runs every state it is given
+    on it, reset to that z0 (Simulation.reset). Where that cannot give the full path's row, each state
+    is the full path's run (``full(index, params)``): a scenario of several loops, a tracked reference
+    (z0 is relative to ref(t)), a simulation on the Python control path (not resettable), a z0 the file's
+    checks refuse (the row then fails with their message, as it would)."""
+
+    full: ScenarioTask
+    loop: str
+    token: str = field(default_factory=lambda: uuid.uuid4().hex)
+
+    def carrying(self, indices) -> StatesTask:
+        return replace(self, full=self.full.carrying(indices))
+
+    def __call__(self, index: int, params) -> dict:
+        states = _thread_states(self, index, params)
+        (_, z), = params
+        if states is None or not states.takes(z):
+            return self.full(index, params)
+        return states.run(z)
+
+
+def _thread_states(task: StatesTask, index: int, params):
+    """This thread's :class:`_States` of ``task`` (made from row ``index`` on first use; None: the full path)."""
+    kept = getattr(_STATES, "by_token", None)
+    if kept is None or task.token not in kept:
+        try:
+            states = _States.of(task, index, params)
+        except ScenarioError:
+            return None  # this state is refused (the full path says so): the next state prepares them
+        _STATES.by_token = kept = {task.token: states}  # one Monte Carlo at a time per thread: the last one's dropped
+    return kept[task.token]
+
+
+class _States:
+    """One validated scenario and its simulation, run again from each state's z0."""
+
+    def __init__(self, sc, sim):
+        self.sc, self.sim = sc, sim
+        self.r = sim.plant.r
+
+    @classmethod
+    def of(cls, task: StatesTask, index: int, params):
+        """The prepared states of ``task`` (row ``index`` validated as the full path would; ScenarioError where
+        that row is refused), or None where they must take the full path (see StatesTask)."""
+        from ftstab_mj.plants import make_plant
+        from ftstab_mj.scenario.plugins import ensure
+        from ftstab_mj.simulation.run_loop import Simulation
+
+        sc = task.full.scenario(index, params)  # ScenarioError: this state is refused
+        ref = getattr(sc.loops[0], "reference", None)
+        if len(sc.loops) != 1 or sc.loops[0].name != task.loop or (ref is not None and not ref.constant):
+            return None
+        ensure(sc)
+        s = sc.sim
+        sim = Simulation(make_plant(sc.plant.model, sc.plant.params), sc.loops, period=s.period,
+                         physics_step=s.physics_step, integrator=s.integrator, divergence_limit=s.divergence_limit)
+        if sim.run_info().kernel != "native":
+            sim.release()
+            return None
+        return cls(sc, sim)
+
+    def takes(self, z) -> bool:
+        """Whether z0 passes the checks the scenario file's loader makes of it (r finite numbers, |z0_i| <= 1e9):
+        the only field that changes from state to state."""
+        return (isinstance(z, (list, tuple)) and len(z) == self.r
+                and all(isinstance(x, float) and math.isfinite(x) and abs(x) <= 1e9 for x in z))
+
+    def run(self, z) -> dict:
+        """The row of the state z0 = ``z``: ``ScenarioTask``'s result with the guarantee's metrics only."""
+        from ftstab_mj.metrics.run_metrics import GUARANTEE_METRICS
+        from ftstab_mj.scenario.run import record
+        from ftstab_mj.simulation.run_loop import Run
+
+        sim, s = self.sim, self.sc.sim
+        sim.reset([z])
+        # the whole run as one batch up to BATCH_SAMPLES (the samples and metrics do not depend on the batches:
+        # fewer batches, less of the per-batch work in Python)
+        run = Run(sim, s.duration, batch_size=BATCH_SAMPLES, metric_settings=self.sc.metrics)
+        result, metrics = record(run, (), metrics=True, selection=GUARANTEE_METRICS)
+        if result.status == INTERRUPTED:  # as ScenarioTask: not a result of this row, stop the Monte Carlo
+            raise KeyboardInterrupt
+        return {"status": result.status, "error": "" if result.status == COMPLETED else result.message,
+                "metrics": metrics}
