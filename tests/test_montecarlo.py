@@ -250,3 +250,18 @@ def test_plant_states_on_the_python_control_path_take_the_full_run():
         got = task(i, (("loops.cart.z0", z),))["metrics"]["loops"]["cart"]
         full = run_scenario(load_scenario(path, sets + [f"loops.cart.z0=[{z[0]!r}, {z[1]!r}]"])).metrics
         assert set(got) > set(mt.GUARANTEE_METRICS) and json.dumps(got) == json.dumps(full["loops"]["cart"])
+
+
+def test_a_state_not_settled_by_the_end_of_the_run_breaks_its_bound_only_when_its_bound_lies_within_the_run():
+    """summarize(rows, applies, duration): a state that never settled in a run of 2 s with T(z0) = 1.5 s is beyond its
+    bound (it must have settled by 1.5 s) and is the worst case; one with T(z0) = 5 s says nothing either way and is
+    counted apart, with the run length that would show it settle."""
+    nan = math.nan
+    rows = [{"row": 0, "z0": [0.1, 0.0], "settle_time": 0.5, "time_bound": 1.0, "ratio": 0.5, "V1_initial": 1.0},
+            {"row": 1, "z0": [0.9, 0.0], "settle_time": nan, "time_bound": 5.0, "ratio": nan, "V1_initial": 1.0},
+            {"row": 2, "z0": [0.5, 0.0], "settle_time": nan, "time_bound": 1.5, "ratio": nan, "V1_initial": 1.0}]
+    s = mc.summarize(rows, True, 2.0)
+    assert s["violations"] == 1 and s["worst"]["row"] == 2
+    assert s["unsettled_bound_beyond"] == 1 and s["longest_bound"] == 5.0 and s["never_settled"] == 2
+    s = mc.summarize(rows[:2], True, 2.0)  # no late state: the worst is the largest ratio, nothing beyond its bound
+    assert s["violations"] == 0 and s["worst"]["row"] == 0 and s["unsettled_bound_beyond"] == 1

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import sys
 
 from ftstab_mj.cli.common import floats, number_in, output_dir, workers
@@ -65,7 +66,7 @@ def handle(args) -> int:
     rows, applies = mc.run_on(args.on, sc, path, args.set, loop, Z0, args.engine, args.workers, args.scheduler,
                               progress)
     shown.close()
-    summary = mc.summarize(rows, applies)
+    summary = mc.summarize(rows, applies, sc.sim.duration)
     applies = summary["bound_applies"]  # not where V1(z0) overflows
     write_table(rows, out / "montecarlo.parquet")
     (out / "montecarlo.json").write_text(mc.json_text(summary) + "\n")
@@ -85,6 +86,10 @@ def handle(args) -> int:
         print(f"  settle time / T(z0): min {q['min']:.3g}, median {q['median']:.3g}, p99 {q['p99']:.3g}, max {q['max']:.3g}")
     if summary["violations"] is not None:
         print(f"  states beyond their bound: {summary['violations']}")
+    if summary["unsettled_bound_beyond"]:
+        print(f"  not settled by the end of the run ({sc.sim.duration:g} s): {summary['unsettled_bound_beyond']}, "
+              f"each with its T(z0) beyond it (no claim either way; --set sim.duration={math.ceil(summary['longest_bound']):d} "
+              f"to see them settle)")
     if summary["worst"]:
         w = summary["worst"]
         print(f"  worst: state {w['row']}, z0 = [{', '.join(f'{x:.17g}' for x in w['z0'])}],"

@@ -259,23 +259,32 @@ def run_on(on: str, sc, path, overrides, loop: str, Z0: np.ndarray, engine=None,
     return rows, bool(rows) and all(rw["bound_applies"] for rw in rows)  # each run's own metric
 
 
-def summarize(rows: list[dict], bound_applies: bool) -> dict:
-    """The distribution of settle_time / T(z0) and the worst case (largest ratio, or a state that never
-    settled), as plain JSON-able data. ``violations``: states whose ratio exceeds 1 while the bound applies."""
+def summarize(rows: list[dict], bound_applies: bool, duration: float | None = None) -> dict:
+    """The distribution of settle_time / T(z0) and the worst case, as plain JSON-able data.
+
+    ``duration`` (s): the runs' simulated time. A state not settled by then breaks its bound only where its
+    T(z0) lies within the run (``late``); one whose T(z0) lies beyond the run says nothing either way
+    (``unsettled_bound_beyond``, with ``longest_bound`` the run length that would show them settle).
+    ``violations``: states with settle_time / T(z0) > 1 plus the late ones, while the bound applies.
+    ``worst``: a late state if any, else the largest ratio, else a state that never settled."""
     ratio = np.array([r["ratio"] for r in rows], dtype=float)
     settled = np.array([math.isfinite(r["settle_time"]) for r in rows])
     finite = ratio[np.isfinite(ratio)]
     q = (lambda p: float(np.quantile(finite, p))) if len(finite) else (lambda p: None)
     never = [r for r in rows if not math.isfinite(r["settle_time"])]
+    late = [r for r in never if duration is not None and math.isfinite(r["time_bound"]) and r["time_bound"] <= duration]
+    beyond = [r for r in never if duration is not None and math.isfinite(r["time_bound"]) and r["time_bound"] > duration]
     infinite = sum(1 for r in rows if not math.isfinite(r.get("V1_initial", 0.0)))
     if infinite:  # V1(z0) beyond float range: T(z0) is no number, the bound cannot be said to apply (W3)
         bound_applies = False
-    worst = never[0] if never else (max((r for r in rows if math.isfinite(r["ratio"])), key=lambda r: r["ratio"])
-                                    if len(finite) else None)
+    largest = max((r for r in rows if math.isfinite(r["ratio"])), key=lambda r: r["ratio"]) if len(finite) else None
+    worst = late[0] if late else largest if largest is not None else (never[0] if never else None)
     return {"states": len(rows), "settled": int(settled.sum()), "never_settled": len(never),
             "bound_applies": bool(bound_applies), "with_bound": int(len(finite)),
             "ratio": {"min": q(0.0), "median": q(0.5), "p90": q(0.9), "p99": q(0.99), "max": q(1.0)},
-            "violations": int(np.sum(finite > 1.0)) if bound_applies else None,
+            "violations": int(np.sum(finite > 1.0)) + len(late) if bound_applies else None,
+            "unsettled_bound_beyond": len(beyond),
+            "longest_bound": max((r["time_bound"] for r in beyond), default=None),
             "bound_note": (f"V1(z0) is not a finite number for {infinite} state(s) (the box is beyond float range): "
                            "no time bound is checked" if infinite else None),
             "worst": None if worst is None else {k: worst[k] for k in ("row", "z0", "settle_time", "time_bound", "ratio")}}
