@@ -17,6 +17,8 @@ import sys
 import tempfile
 from pathlib import Path
 
+from benchmarks._common import child_env
+
 CHILD = """
 import contextlib, os, resource, sys
 from ftstab_mj.cli import main
@@ -29,7 +31,7 @@ sys.exit(code)
 
 def peak_mb(argv: list) -> float:
     """Peak RSS (MB) of `ftstab ARGV` in a fresh process."""
-    res = subprocess.run([sys.executable, "-c", CHILD, *argv], capture_output=True, text=True)
+    res = subprocess.run([sys.executable, "-c", CHILD, *argv], capture_output=True, text=True, env=child_env())
     if res.returncode != 0:
         raise SystemExit(f"ftstab {' '.join(argv)} failed (exit {res.returncode}): {res.stderr.strip()[-400:]}")
     kb = [line.split()[1] for line in res.stderr.splitlines() if line.startswith("PEAK_KB")]
