@@ -29,7 +29,6 @@ QUICK = {
     "memory_flat": ["--durations", "1", "10", "--repeat", "1"],
     "montecarlo_speed": ["--states", "500", "--repeat", "1"],
     "physical_loop": ["--repeat", "1", "--steps", "2000"],
-    "r6_frontier": ["--starts", "2", "--bounds", "1000"],
     "row_cost": ["--rows", "4", "--duration", "0.05", "--repeat", "1"],
     "run_speed": ["--repeat", "1", "--duration", "0.05", "--scenarios", "cart_r2_robust", "--no-breakdown"],
     "speed": ["--repeat", "1", "--steps", "2000"],

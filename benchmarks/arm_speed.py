@@ -1,7 +1,7 @@
 """Speed of the chain plants (the arms, a user model): per-step cost against bare MuJoCo stepping, and
 the start-up of the shipped arm scenarios before their first sample.
 
-    python benchmarks/arm_speed.py [--repeat 5] [--steps 20000] [--code DIR]
+    python -m benchmarks arm_speed [--repeat 5] [--steps 20000] [--code DIR]
 
 per step   Simulation.advance (robust law, one sample per 1 ms physics step, batches of 1000), native
            and Python callback, against mj_step(m, d, nstep) of the same compiled model with no

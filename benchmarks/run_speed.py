@@ -1,6 +1,6 @@
 """The cost of a whole run against MuJoCo's own, whole processes and in process, as CPU-time ratios.
 
-    python -m benchmarks.run_speed [--repeat 5] [--duration 100] [--scenarios cart_r2_robust,arm_robust]
+    python -m benchmarks run_speed [--repeat 5] [--duration 100] [--scenarios cart_r2_robust,arm_robust]
 
 For each scenario (default: the default scenario cart_r2_robust and the arm, arm_robust), ratios
 each of alternated timings A B A B ... (a change of machine load hits both), median and min-max

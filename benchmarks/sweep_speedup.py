@@ -1,6 +1,6 @@
 """Speed-up of `ftstab sweep` from 1 to 2 workers, the set-up cost of one sweep row, and the fixed costs.
 
-    python -m benchmarks.sweep_speedup [--case rows|periods] [--samples N] [--repeat 3] [--no-external]
+    python -m benchmarks sweep_speedup [--case rows|periods] [--samples N] [--repeat 3] [--no-external]
 
 Cases:
 - ``rows`` (default, issue 16): ``--samples`` rows (default 200) of 1 s simulated of the r = 2 robust
