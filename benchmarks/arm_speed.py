@@ -93,7 +93,8 @@ def per_step(plant, steps: int, repeat: int) -> dict:
     for _ in range(repeat):
         bare = _cpu(lambda: mujoco.mj_step(m, d, nstep=steps))
         for kind, sim in sims.items():
-            n = steps if kind == "native" else steps // 10  # the Python callback: a tenth, scaled
+            # the Python callback: a tenth, scaled (one batch at least: below 10 batches it timed nothing)
+            n = steps if kind == "native" else max(steps // 10, BATCH)
             with sim.installed():
                 t = _cpu(lambda: [sim.advance(BATCH) for _ in range(n // BATCH)])
             out[kind].append(t * (steps / n) / bare)
