@@ -20,7 +20,7 @@ the near-maximal set that contains the zero; at k = 0 the same boxes are second 
 
     python -m benchmarks certificate_order [--rows 0,1,...]
 
-Deterministic; one core, about 3 s.
+Deterministic; one core, about 8 s of CPU.
 """
 
 import argparse
