@@ -37,7 +37,7 @@ QUICK = {
 
 
 def benchmarks() -> dict[str, str]:
-    """{name: the first line of its docstring} of every benchmark module (read, not imported: listing is instant)."""
+    """{name: the first sentence of its docstring} of every benchmark module (read, not imported: listing is instant)."""
     return {p.stem: _summary(ast.get_docstring(ast.parse(p.read_text())) or "")
             for p in sorted(HERE.glob("*.py")) if not p.stem.startswith("_")}
 
@@ -68,7 +68,7 @@ def main(argv: list[str]) -> int:
             print(f"python -m benchmarks {name}: no --quick settings (it is short already or has none)", file=sys.stderr)
             return 2
         rest = QUICK[name] + [a for a in rest if a != "--quick"]  # an option given too comes last: it wins
-    sys.argv = [f"python -m benchmarks {name}", *rest]
+    sys.argv = [name, *rest]  # runpy sets argv[0] to the module's file
     runpy.run_module(f"benchmarks.{name}", run_name="__main__", alter_sys=True)
     return 0
 
