@@ -1,7 +1,7 @@
 """Speed of the chain plants (the arms, a user model): per-step cost against bare MuJoCo stepping, and
 the start-up of the shipped arm scenarios before their first sample.
 
-    python benchmarks/arm_speed.py [--repeat 5] [--steps 20000] [--code DIR]
+    python -m benchmarks arm_speed [--repeat 5] [--steps 20000] [--code DIR]
 
 per step   Simulation.advance (robust law, one sample per 1 ms physics step, batches of 1000), native
            and Python callback, against mj_step(m, d, nstep) of the same compiled model with no
@@ -10,7 +10,8 @@ start-up   a fresh interpreter per measurement: the imports, then load_scenario(
            the plant and any "computed" bound) up to the moment the run opens its first sink, i.e.
            everything before the first sample is stepped (the bound tables included, cold cache).
            ``--code DIR`` measures the start-up of another checkout (e.g. the code before a change)
-           with the same method, alternately with this one.
+           with the same method, alternately with this one. The interpreters read bytecode cached as
+           an installed package has it (benchmarks/_common.child_env).
 """
 
 from __future__ import annotations
@@ -29,6 +30,7 @@ import mujoco
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from benchmarks._common import child_env  # noqa: E402
 from ftstab_mj.control import HongController, RobustLaw  # noqa: E402
 from ftstab_mj.plants import make_plant  # noqa: E402
 from ftstab_mj.scenario import LoopSpec  # noqa: E402
@@ -91,7 +93,8 @@ def per_step(plant, steps: int, repeat: int) -> dict:
     for _ in range(repeat):
         bare = _cpu(lambda: mujoco.mj_step(m, d, nstep=steps))
         for kind, sim in sims.items():
-            n = steps if kind == "native" else steps // 10  # the Python callback: a tenth, scaled
+            # the Python callback: a tenth, scaled (one batch at least: below 10 batches it timed nothing)
+            n = steps if kind == "native" else max(steps // 10, BATCH)
             with sim.installed():
                 t = _cpu(lambda: [sim.advance(BATCH) for _ in range(n // BATCH)])
             out[kind].append(t * (steps / n) / bare)
@@ -99,7 +102,7 @@ def per_step(plant, steps: int, repeat: int) -> dict:
 
 
 def startup(code: Path, name: str) -> dict:
-    env = dict(os.environ, PYTHONPATH=str(code))
+    env = child_env(code)
     proc = subprocess.run([sys.executable, "-c", STARTUP, name], capture_output=True, text=True, env=env, cwd=code)
     if proc.returncode != 0:
         return {"error": proc.stderr.strip().splitlines()[-1] if proc.stderr.strip() else "failed"}

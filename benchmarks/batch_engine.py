@@ -29,6 +29,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from benchmarks._common import child_env
+
 ROOT = Path(__file__).resolve().parents[1]
 CART = ROOT / "scenarios" / "cart_r2_robust.toml"
 
@@ -68,7 +70,7 @@ WRAP = ("import resource, subprocess, sys; r = subprocess.run(sys.argv[1:]); "
 
 def run(cmd: list, cwd) -> tuple[float, float, float]:
     """(CPU s of the command's processes, wall s, peak RSS MB of the largest) of one command."""
-    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    env = child_env()
     w0 = time.perf_counter()
     res = subprocess.run([sys.executable, "-c", WRAP, *map(str, cmd)], cwd=cwd, env=env, capture_output=True,
                          text=True)

@@ -13,7 +13,7 @@ Two populations, seeded:
 - "near certified": k uniform in [1.5 k_d, 0] and each gain of a certified gain set (k_d its k) times
   2^u, u uniform in [-1, 1]: problems near the certified region, where the bounds must close.
 
-    python benchmarks/certificate_budget.py [--n 30] [--r 2,3,4] [--seed 0]
+    python -m benchmarks certificate_budget [--n 30] [--r 2,3,4] [--seed 0]
 
 One core; about 3 minutes with the defaults (r = 4 rows take up to their 30 s).
 """

@@ -18,9 +18,9 @@ corners hold the maximum of a function that is nearly linear on the box). order 
 slope of ~400 (r = 6, k = -0.002, on s_4 = 0) at c ~ 0.07 asks for widths ~2e-4 on every box of
 the near-maximal set that contains the zero; at k = 0 the same boxes are second order.
 
-    python benchmarks/certificate_order.py [--rows 0,1,...]
+    python -m benchmarks certificate_order [--rows 0,1,...]
 
-Deterministic; one core, about 3 s.
+Deterministic; one core, about 8 s of CPU.
 """
 
 import argparse

@@ -9,8 +9,8 @@ stopping point depends on the machine's speed). The soundness figure: for every 
 c_lower, the largest dV1/dt / V1^alpha that a gradient ascent with the controller's own Lie
 derivative finds from 512 starts, as (found + c_lower) / |c_lower| (the claim is that it is <= 0).
 
-    python benchmarks/certificate_table.py [--budget S] [--rows N] [--r R] [--no-soundness] [--rounding]
-    python benchmarks/certificate_table.py --against DIR [--repeat 3] [--select 10,14,...] [--budget S]
+    python -m benchmarks certificate_table [--budget S] [--rows N] [--r R] [--no-soundness] [--rounding]
+    python -m benchmarks certificate_table --against DIR [--repeat 3] [--select 10,14,...] [--budget S]
 
 --against DIR: before/after on the same rows. DIR is another source tree of the project (e.g.
 `git archive main | tar -x -C DIR`); each row is certified in a fresh process of each tree in turn,

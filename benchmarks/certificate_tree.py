@@ -6,7 +6,7 @@ witness search, the retiring and the memory caps of certificate._maximise are le
 versions of the bound (or two k) compare on the same work: e.g. r = 6 with the 6-decade gains at
 k = 0 (the tree closes at depth 36, 1.1e6 boxes) and at k = -0.002.
 
-    python benchmarks/certificate_tree.py [--r 6] [--k -0.002] [--gains 0.62,1.15,1.54,3.88,39.13,1e5] [--depth 20] [--where]
+    python -m benchmarks certificate_tree [--r 6] [--k -0.002] [--gains 0.62,1.15,1.54,3.88,39.13,1e5] [--depth 20] [--where]
 
 --where: after the last depth, where the open boxes are, per face: the share that touches s_i = 0
 (an end at 0), the median width and the split rule's choices, per coordinate s_i (the boxes that

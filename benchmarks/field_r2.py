@@ -1,6 +1,6 @@
 """The field's comparison at full length: does every one of the six field laws converge on the cart?
 
-    python benchmarks/field_r2.py [--workers 2] [--duration 10] [--out DIR] [--no-check]
+    python -m benchmarks field_r2 [--workers 2] [--duration 10] [--out DIR] [--no-check]
 
 Runs ``ftstab compare scenarios/compare/field_r2.toml`` (every law registered for r = 2, the cart,
 phi = 0.8 sin(pi t) m/s^2, gamma in [0.8, 1.2], periods 0.5..4 ms) through the real CLI, then prints,

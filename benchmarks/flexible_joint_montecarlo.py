@@ -1,6 +1,6 @@
 """Monte Carlo of Theorem 1 on the flexible joint (r = 4): the long study behind the flexible joint page.
 
-    python -m benchmarks.flexible_joint_montecarlo [--states 1000] [--seeds 1] [--workers 2] [--save PATH]
+    python -m benchmarks flexible_joint_montecarlo [--states 1000] [--seeds 1] [--workers 2] [--save PATH]
 
 Runs scenarios/montecarlo/flexible_joint_r4.toml on the plant (``ftstab montecarlo --on plant``, the
 batch engine) for --states initial states uniform in |z0| <= (0.2, 0.3, 0.3, 0.3), in --seeds draws of

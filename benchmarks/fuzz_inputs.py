@@ -1,6 +1,6 @@
 """The long run of the input fuzzer (tests/fuzzing.py; the suite runs 200 cases of it).
 
-    python benchmarks/fuzz_inputs.py [--cases 20000] [--seed 0]
+    python -m benchmarks fuzz_inputs [--cases 20000] [--seed 0]
 
 Mutated shipped scenarios and random --set texts through `ftstab run`'s main, in process. Prints the
 number of cases, how they ended (exit code; "accepted, not run" for valid scenarios too long to run

@@ -2,7 +2,7 @@
 at seeded random moments over the whole command (interpreter start, imports, setup, every batch,
 closing), and what the logs hold afterwards.
 
-    python benchmarks/interruptions.py [--tries 60] [--seed 1] [--scenario cart_r2_robust] [--entry both]
+    python -m benchmarks interruptions [--tries 60] [--seed 1] [--scenario cart_r2_robust] [--entry both]
 
 The command is started as ``python -m ftstab_mj`` and as the installed ``ftstab`` script in turn
 (--entry both; each gets every signal). Each try is classified: "no log" (stopped before the

@@ -1,7 +1,7 @@
 """Cost of every registered control law in the run loop, on the cart and on the arm, as a ratio to bare
 MuJoCo stepping.
 
-    python benchmarks/law_costs.py [--repeat 3] [--steps 10000] [--r 2] [--no-python] [--law LABEL ...]
+    python -m benchmarks law_costs [--repeat 3] [--steps 10000] [--r 2] [--no-python] [--law LABEL ...]
 
 The laws: every entry of the shipped comparisons scenarios/compare/cart_r<r>.toml and field_r<r>.toml
 (their parameters, one row per label). The plants: the cart (r = 2, or the integrating cart at r = 3)

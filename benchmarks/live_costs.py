@@ -2,7 +2,7 @@
 against ``foxglove=`` (the WebSocket server publishing every message; no client, then one client
 subscribed to every channel, in a process of its own), alternated, medians and ranges.
 
-    python -m benchmarks.live_costs [--repeat 5] [--duration 20]
+    python -m benchmarks live_costs [--repeat 5] [--duration 20]
 
 The process CPU time counts the server's own threads; the client's CPU is not counted.
 """

@@ -1,6 +1,6 @@
 """Cost of the run logs: write time and size per 10,000 samples, and reading them back.
 
-    python -m benchmarks.log_costs [--repeat 5]
+    python -m benchmarks log_costs [--repeat 5]
 
 1. The sinks alone: the 10,000 samples of scenario cart_r2_robust (10 s at 1 ms, one loop, one
    body) written in batches of 1000 by McapSink and by RerunSink; best of --repeat; file sizes.

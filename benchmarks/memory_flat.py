@@ -3,7 +3,7 @@
 the 1000 s run peaks at <= 1.2x the 10 s one (issue 16), the 10,000 s one likewise, and the replay
 reads the log as it streams. The 10,000 s run takes ~1 min and writes 1.3 GB of logs (deleted after).
 
-    python benchmarks/memory_flat.py [--scenario cart_r2_nominal] [--durations 10 100 1000 10000] [--repeat 3]
+    python -m benchmarks memory_flat [--scenario cart_r2_nominal] [--durations 10 100 1000 10000] [--repeat 3]
 
 Each repeat runs every duration (in alternating order: forward, then backward), then replays each log;
 printed: per duration the median peak and the range over the repeats, and the ratio of each duration's
@@ -17,6 +17,9 @@ import sys
 import tempfile
 from pathlib import Path
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # also as `python benchmarks/memory_flat.py`
+from benchmarks._common import child_env  # noqa: E402
+
 CHILD = """
 import contextlib, os, resource, sys
 from ftstab_mj.cli import main
@@ -29,7 +32,7 @@ sys.exit(code)
 
 def peak_mb(argv: list) -> float:
     """Peak RSS (MB) of `ftstab ARGV` in a fresh process."""
-    res = subprocess.run([sys.executable, "-c", CHILD, *argv], capture_output=True, text=True)
+    res = subprocess.run([sys.executable, "-c", CHILD, *argv], capture_output=True, text=True, env=child_env())
     if res.returncode != 0:
         raise SystemExit(f"ftstab {' '.join(argv)} failed (exit {res.returncode}): {res.stderr.strip()[-400:]}")
     kb = [line.split()[1] for line in res.stderr.splitlines() if line.startswith("PEAK_KB")]

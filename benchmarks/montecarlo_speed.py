@@ -1,6 +1,6 @@
 """Monte Carlo throughput of `ftstab montecarlo --on chain`: initial states per CPU-second.
 
-    python -m benchmarks.montecarlo_speed [--states 20000] [--repeat 3]
+    python -m benchmarks montecarlo_speed [--states 20000] [--repeat 3]
 
 The r = 2 robust cart (10 s at 1 ms, its sine disturbance) on the native ideal chain. Alternately,
 --repeat times: A = run_chain (chunks of 128 states, reduced to per-trajectory rows before the next

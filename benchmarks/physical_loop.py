@@ -1,6 +1,6 @@
 """The physical loop (sensor, observer, actuator stages): its cost in the control callback and its figures.
 
-    python benchmarks/physical_loop.py [--repeat 5] [--steps 100000] [--figures]
+    python -m benchmarks physical_loop [--repeat 5] [--steps 100000] [--figures]
 
 Cost. The robust law on the cart (r = 2) and the integrating cart (r = 3), one control sample per
 1 ms physics step, batches of 1000 samples: Simulation.advance with every stage on (position-only

@@ -1,6 +1,6 @@
 """The fixed CPU cost of a sweep row on the cart, in one process, against bare stepping of the same rows.
 
-    python -m benchmarks.row_cost [--rows 96] [--duration 2] [--repeat 7]
+    python -m benchmarks row_cost [--rows 96] [--duration 2] [--repeat 7]
 
 The sweep of benchmarks/batch_engine.py (--rows rows of --duration s on the r = 2 robust cart, a grid
 over the disturbance's amplitude), run as ``ftstab sweep`` runs it serially, after one untimed pass

@@ -1,6 +1,6 @@
 """The cost of a whole run against MuJoCo's own, whole processes and in process, as CPU-time ratios.
 
-    python -m benchmarks.run_speed [--repeat 5] [--duration 100] [--scenarios cart_r2_robust,arm_robust]
+    python -m benchmarks run_speed [--repeat 5] [--duration 100] [--scenarios cart_r2_robust,arm_robust]
 
 For each scenario (default: the default scenario cart_r2_robust and the arm, arm_robust), ratios
 each of alternated timings A B A B ... (a change of machine load hits both), median and min-max
@@ -21,9 +21,9 @@ process that only imports what `ftstab run` imports (and what --rrd adds: rerun-
 runs 1 sample (start-up and every fixed cost), in process the run without sinks or metrics and with
 the metrics stream, and the bare step with the bindings' default timer.
 
-Child processes run with the bytecode cached, as an installed package has it (a private
-PYTHONPYCACHEPREFIX, warmed by one untimed run; this machine sets PYTHONDONTWRITEBYTECODE, which
-makes every process compile ftstab_mj's sources again): ``--bytecode env`` keeps the environment.
+Child processes run with the bytecode cached, as an installed package has it (benchmarks/_common.child_env:
+this machine sets PYTHONDONTWRITEBYTECODE, which makes every process compile ftstab_mj's sources again):
+``--bytecode env`` keeps the environment.
 """
 
 from __future__ import annotations
@@ -42,6 +42,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 import mujoco  # noqa: E402
+
+from benchmarks._common import child_env  # noqa: E402
 
 from ftstab_mj.plants.callback import timer_off  # noqa: E402
 from ftstab_mj.logs import McapSink, RerunSink  # noqa: E402
@@ -156,10 +158,7 @@ def main(argv=None) -> int:
           f"mujoco {mujoco.__version__}, {os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.2f} at start")
     with tempfile.TemporaryDirectory() as tmp_name:
         tmp = Path(tmp_name)
-        env = dict(os.environ, PYTHONPATH=str(ROOT))
-        if args.bytecode == "cached":
-            env.pop("PYTHONDONTWRITEBYTECODE", None)
-            env["PYTHONPYCACHEPREFIX"] = str(tmp / "pycache")
+        env = child_env() if args.bytecode == "cached" else dict(os.environ, PYTHONPATH=str(ROOT))
         print(f"{'':44s} {'A CPU s':>22s} {'B CPU s':>22s} {'A / B':>22s}  target")
         for name in args.scenarios.split(","):
             case = Case(name.strip(), args.duration, tmp, env)

@@ -1,6 +1,6 @@
 """Speed of the testbed against MuJoCo's own cost: the ratios of issue 6, measured, as a table.
 
-    python benchmarks/speed.py [--repeat 5] [--steps 100000]
+    python -m benchmarks speed [--repeat 5] [--steps 100000]
 
 Every ratio compares two timings of the same model over the same number of physics steps, taken
 one after the other in each repetition (so a change in machine load hits both); the table shows

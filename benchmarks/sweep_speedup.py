@@ -1,6 +1,6 @@
 """Speed-up of `ftstab sweep` from 1 to 2 workers, the set-up cost of one sweep row, and the fixed costs.
 
-    python -m benchmarks.sweep_speedup [--case rows|periods] [--samples N] [--repeat 3] [--no-external]
+    python -m benchmarks sweep_speedup [--case rows|periods] [--samples N] [--repeat 3] [--no-external]
 
 Cases:
 - ``rows`` (default, issue 16): ``--samples`` rows (default 200) of 1 s simulated of the r = 2 robust
@@ -32,11 +32,10 @@ costs whatever the machine's other load), the 1-minute load average before each 
 and checks that every configuration wrote the same table. The machine's other load counts: before each repeat,
 :func:`machine_parallelism` measures what 2 processes can gain at all at that moment.
 
-Every command runs as an installed package does, with ftstab_mj's modules compiled to bytecode first
-(:func:`compile_bytecode`). Where PYTHONDONTWRITEBYTECODE is set and the tree has no ``__pycache__``
-(this machine's sessions), Python compiles the ~55 modules a sweep imports from source at every start
-(~0.1 s of CPU, printed): a cost of that environment, not of the command, which no install pays (pip
-compiles a wheel's modules; a tree without that variable keeps what it compiled once).
+Every command runs as an installed package does, with its bytecode cached (benchmarks/_common.child_env).
+Where PYTHONDONTWRITEBYTECODE is set and the tree has no ``__pycache__`` (this machine's sessions), Python
+compiles the ~55 modules a sweep imports from source at every start (~0.1 s of CPU, printed): a cost of that
+environment, not of the command, which no install pays (pip compiles a wheel's modules).
 """
 
 import argparse
@@ -51,10 +50,10 @@ import tempfile
 import time
 from pathlib import Path
 
+from benchmarks._common import ROOT, child_env
 from ftstab_mj.studies.batch_env import batch_environment
 from ftstab_mj.studies.sweep.table import VARYING_COLUMNS, read_table
 
-ROOT = Path(__file__).resolve().parent.parent
 BASE = ROOT / "scenarios" / "cart_r2_robust.toml"
 CASES = {
     "rows": '''samples = {samples}
@@ -73,12 +72,6 @@ CASES = {
 "loops.cart.z0[0]" = {{uniform = [-1.0, 1.0]}}
 ''',
 }
-
-
-def compile_bytecode() -> None:
-    """ftstab_mj's modules compiled to bytecode in its tree (``__pycache__``, which git ignores), as an installed
-    package has them: Python reads them at each start, also under PYTHONDONTWRITEBYTECODE."""
-    subprocess.run([sys.executable, "-m", "compileall", "-q", str(ROOT / "ftstab_mj")], check=True, stdout=subprocess.DEVNULL)
 
 
 def sweep_file(folder: Path, case: str, duration: float = 1.0, samples: int = 200) -> Path:
@@ -357,8 +350,7 @@ def main():
     become_subreaper()
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
-        compile_bytecode()
-        env = batch_environment(dict(os.environ))
+        env = batch_environment(child_env(extra_warm=("distributed", "dask")))
         costs = setup_cost(tmp)
         for kind, (c1, c2, c0) in costs.items():
             print(f"CPU per row, {kind:<9}: {c1:.2f} ms (1 s rows), {c2:.2f} ms (2 s rows); set-up of a row "
@@ -370,7 +362,7 @@ def main():
                            capture_output=True, check=True, env=env)
             phases = fixed_costs(tmp, sweep, ref / f"{args.case}.jsonl", env)
             modules, cpu = compile_cost(env)
-            print(f"bytecode: ftstab_mj compiled once, as installed; compiling the {modules} modules a sweep imports "
+            print(f"bytecode: cached, as installed; compiling the {modules} modules a sweep imports "
                   f"from source at every start (PYTHONDONTWRITEBYTECODE, no __pycache__) would add {cpu:.3f} s of CPU")
             print(f"fixed costs of the command, fresh process, median of 3 (load: {os.getloadavg()[0]:.2f}):")
             for name, (cpu, wall) in phases.items():

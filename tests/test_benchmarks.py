@@ -1,5 +1,6 @@
-"""benchmarks/speed.py runs (shortened) and prints its table: no timing is asserted (speed lives in
-the benchmark, not in the tests), only that the script the README shows works."""
+"""The benchmarks run through their entry point: every one is listed and answers --help, and the cheap ones
+run with --quick (its settings: benchmarks/__main__.QUICK) and print every row. No timing is asserted (speed
+lives in the benchmarks, not in the tests), only that the scripts the docs show work."""
 
 import subprocess
 import sys
@@ -10,9 +11,55 @@ from ftstab_mj.simulation import native
 from conftest import ROOT
 
 
+HELP_ALL = """
+import contextlib, io, json, runpy, sys
+from benchmarks.__main__ import benchmarks
+helps = {}
+for name in benchmarks():
+    sys.argv = [name, "--help"]
+    out = io.StringIO()
+    try:
+        with contextlib.redirect_stdout(out):
+            runpy.run_module("benchmarks." + name, run_name="__main__")
+        code = "no exit"
+    except SystemExit as e:
+        code = e.code
+    helps[name] = [code, out.getvalue()]
+print(json.dumps(helps))
+"""
+
+
+def test_every_benchmark_is_listed_and_answers_help():
+    """`python -m benchmarks` lists every module of benchmarks/ (one line each, a summary from its docstring);
+    each imports and its --help exits 0 with a usage line naming every option of its --quick settings; an
+    unknown name is one line and exit 2."""
+    import json
+
+    from benchmarks.__main__ import QUICK
+
+    modules = sorted(p.stem for p in (ROOT / "benchmarks").glob("*.py") if not p.stem.startswith("_"))
+    listed = subprocess.run([sys.executable, "-m", "benchmarks"], capture_output=True, text=True, timeout=60, cwd=ROOT)
+    assert listed.returncode == 0, listed.stderr
+    lines = listed.stdout.splitlines()[1:]
+    assert [line.split()[0] for line in lines] == modules, listed.stdout
+    assert all(len(line.split()) > 3 for line in lines), listed.stdout  # a summary on every line
+    out = subprocess.run([sys.executable, "-c", HELP_ALL], capture_output=True, text=True, timeout=120, cwd=ROOT)
+    assert out.returncode == 0, out.stderr
+    helps = json.loads(out.stdout.strip().splitlines()[-1])
+    assert sorted(helps) == modules
+    for name, (code, text) in helps.items():
+        assert code == 0 and text.startswith("usage:"), (name, code, text)
+        for option in (a for a in QUICK.get(name, ()) if a.startswith("--")):
+            assert option in text.split(), (name, option)
+    assert set(QUICK) <= set(modules), set(QUICK) - set(modules)
+    unknown = subprocess.run([sys.executable, "-m", "benchmarks", "nope"], capture_output=True, text=True, timeout=60,
+                             cwd=ROOT)
+    assert unknown.returncode == 2 and len(unknown.stderr.strip().splitlines()) == 1, unknown.stderr
+
+
 @pytest.mark.skipif(not native.available(), reason=f"native kernel: {native.UNAVAILABLE_REASON}")
 def test_speed_benchmark_prints_every_ratio():
-    out = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "speed.py"), "--repeat", "1", "--steps", "2000"],
+    out = subprocess.run([sys.executable, "-m", "benchmarks", "speed", "--quick"],
                          capture_output=True, text=True, timeout=300, cwd=ROOT)
     assert out.returncode == 0, out.stderr
     for row in ("callback robust r=2", "callback adaptive r=3", "ideal chain r=2, 1000 initial states"):
@@ -20,7 +67,7 @@ def test_speed_benchmark_prints_every_ratio():
 
 
 def test_law_costs_benchmark_prints_every_law_on_the_cart_and_the_arm():
-    out = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "law_costs.py"), "--repeat", "1", "--steps", "1000"],
+    out = subprocess.run([sys.executable, "-m", "benchmarks", "law_costs", "--quick"],
                          capture_output=True, text=True, timeout=300, cwd=ROOT)
     assert out.returncode == 0, out.stderr
     rows = [line.split() for line in out.stdout.splitlines()[2:]]
@@ -39,7 +86,7 @@ def test_law_costs_benchmark_prints_every_law_on_the_cart_and_the_arm():
 
 
 def test_live_costs_benchmark_prints_every_case():
-    out = subprocess.run([sys.executable, "-m", "benchmarks.live_costs", "--repeat", "1", "--duration", "1.5"],
+    out = subprocess.run([sys.executable, "-m", "benchmarks", "live_costs", "--quick"],
                          capture_output=True, text=True, timeout=300, cwd=ROOT)
     assert out.returncode == 0, out.stderr
     for row in ("plain ", "--foxglove, no client", "--foxglove, one client subscribed"):
@@ -48,8 +95,7 @@ def test_live_costs_benchmark_prints_every_case():
 
 
 def test_run_speed_benchmark_prints_the_process_and_in_process_ratios():
-    out = subprocess.run([sys.executable, "-m", "benchmarks.run_speed", "--repeat", "1", "--duration", "0.05",
-                          "--scenarios", "cart_r2_robust", "--no-breakdown"],
+    out = subprocess.run([sys.executable, "-m", "benchmarks", "run_speed", "--quick"],
                          capture_output=True, text=True, timeout=300, cwd=ROOT)
     assert out.returncode == 0, out.stderr
     for row in ("process: `ftstab run` / plain mujoco", "process: `ftstab run --rrd` / plain mujoco",
@@ -60,7 +106,7 @@ def test_run_speed_benchmark_prints_the_process_and_in_process_ratios():
 
 def test_certificate_budget_benchmark_prints_a_row_per_population():
     """Every drawn problem gets one of the three answers (the counts add up), one row per population."""
-    out = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "certificate_budget.py"), "--n", "2", "--r", "2"],
+    out = subprocess.run([sys.executable, "-m", "benchmarks", "certificate_budget", "--quick"],
                          capture_output=True, text=True, timeout=300, cwd=ROOT)
     assert out.returncode == 0, out.stderr
     rows = [line.split("|")[1:-1] for line in out.stdout.splitlines() if line.startswith("| 2 |")]
@@ -70,7 +116,7 @@ def test_certificate_budget_benchmark_prints_a_row_per_population():
 
 
 def test_row_cost_benchmark_prints_the_fixed_cost_of_a_sweep_row():
-    out = subprocess.run([sys.executable, "-m", "benchmarks.row_cost", "--rows", "4", "--duration", "0.05", "--repeat", "1"],
+    out = subprocess.run([sys.executable, "-m", "benchmarks", "row_cost", "--quick"],
                          capture_output=True, text=True, timeout=300, cwd=ROOT)
     assert out.returncode == 0, out.stderr
     for part in ("validation", "run", "bare mj_step", "fixed cost (validation + run - bare)"):
