@@ -6,7 +6,7 @@ overrides=None)``, ``scenario_from_dict(data, overrides=None, base_dir=None)``, 
 """
 
 # Bumped, with a CHANGELOG.md entry, whenever the log or scenario format changes; logs record both.
-__version__ = "0.3.0"
+__version__ = "0.4.0"
 LOG_FORMAT = 2  # the MCAP log's layout (1: every log written before 0.2.0); readers branch on it
 __all__ = ["Result", "load_scenario", "replay", "run", "scenario_from_dict", "__version__"]
 

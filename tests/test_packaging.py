@@ -89,7 +89,7 @@ def test_every_imported_package_is_declared_and_the_license_is_an_spdx_expressio
 
 def test_the_version_is_written_once_and_the_changelog_names_it():
     """pyproject reads the version from ftstab_mj.__version__; the CHANGELOG's newest entry is that
-    version (a format change bumps both); the LICENSE is the license the metadata declares."""
+    version (a format change bumps both), as is CITATION.cff's; the LICENSE is the license the metadata declares."""
     import ftstab_mj
 
     project = tomllib.loads((ROOT / "pyproject.toml").read_text())
@@ -97,4 +97,7 @@ def test_the_version_is_written_once_and_the_changelog_names_it():
     assert project["tool"]["setuptools"]["dynamic"]["version"] == {"attr": "ftstab_mj.__version__"}
     first = next(line for line in (ROOT / "CHANGELOG.md").read_text().splitlines() if line.startswith("## "))
     assert first.split()[1] == ftstab_mj.__version__
+    cited = [line.split(":", 1)[1].strip() for line in (ROOT / "CITATION.cff").read_text().splitlines()
+             if line.startswith("version:")]
+    assert cited == [ftstab_mj.__version__]  # a citation names the version it used (it said 0.1.0 at 0.3.0)
     assert project["project"]["license"] == "MIT" and (ROOT / "LICENSE").read_text().startswith("MIT License")

@@ -4,7 +4,7 @@ bit for bit, as before it was made cheap.
 Reference: SHA-256 digests of every recorded field (name, dtype, shape, bytes) of short runs forced
 onto the Python path (native=False), saved from the per-sample implementation before its rewrite
 (git history of ftstab_mj/simulation/run_loop.py), re-pinned once since, where the paper's laws' V1
-became the C kernel's bit for bit (hong._W, 0.3.0; the Python path's samples then equal the native
+became the C kernel's bit for bit (hong._W, 0.4.0; the Python path's samples then equal the native
 path's in all 41 cases: test_the_python_path_is_the_native_path). Cases: every shipped scenario (stages,
 saturation, the arm, the flexible joint, r = 2..5, their integrators), every law of the shipped
 cart comparisons on the cart scenario, a tracked reference, and RK4 with 5 steps a period. Each
