@@ -62,7 +62,9 @@ def test_an_expectation_table_is_read_by_the_configuration_layer():
     cases = {
         "tol": ({"value": 1.0, "tol": 0.1}, "e.toml: loops.a.settle_time.tol: expected one of the keys value, atol, "
                                             "rtol, min, max, null, found unknown key 'tol'"),
-        "fast": ({"value": "fast"}, "e.toml: loops.a.settle_time.value: expected a number, found 'fast' (a string)"),
+        "fast": ({"value": "fast"}, "e.toml: loops.a.settle_time.value: expected a number, found 'fast'"),
+        # a number written as a string: the type is the point, so it is named
+        "quoted": ({"value": "1.0"}, "e.toml: loops.a.settle_time.value: expected a number, found '1.0' (a string)"),
         "nan": ({"value": float("nan")}, "e.toml: loops.a.settle_time.value: expected a finite number, found nan (a float)"),
         "atol": ({"value": 1.0, "atol": -0.1}, "e.toml: loops.a.settle_time.atol: expected a number >= 0, found -0.1 (a float)"),
     }

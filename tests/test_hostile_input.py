@@ -32,7 +32,7 @@ HOSTILE = [
     ("name-251-chars", R2, None, ["name=" + "a" * 251], "name", ["at most 200 characters", "255 bytes"]),
     ("name-not-ascii", R2, None, ["name=caf\u00e9"], "name", ["ASCII letters"]),
     ("gain-worst-case", R2, None, ['loops.cart.gain={kind="worst_case", offset=1.0}'], "loops.cart.gain.kind",
-     ["depends on time only", "'worst_case' (a string)"]),
+     ["depends on time only", "found 'worst_case'"]),
     ("period-1e308", R2, None, ["sim.period=1e308"], "sim.period",
      ["at most 1e6 physics steps per period", "> 1e308 steps"]),
     ("period-1e9", R2, None, ["sim.period=1e9", "sim.duration=1e9"], "sim.period",
@@ -84,6 +84,15 @@ def test_a_step_may_step_down_an_actuator_losing_half_its_gain():
     assert list(lp.gain([0.0, 0.2499, 0.25, 3.0])) == [1.0, 1.0, 0.5, 0.5]
     with pytest.raises(ValueError, match="only a step's amplitude is signed"):
         Signal("sine", 1.0, -0.5)
+
+
+def test_a_count_of_one_is_singular_in_a_message():
+    from ftstab_mj.config.errors import ScenarioError
+
+    with pytest.raises(ScenarioError) as exc:
+        load_scenario(R2, ["loops.cart.z0=[1.0]"])
+    assert str(exc.value).endswith("loops.cart.z0: expected 2 numbers (z_1..z_r, r = 2 for model 'cart'), "
+                                   "found 1 number"), str(exc.value)
 
 
 def test_the_limits_hold_exactly_at_their_values():

@@ -2,6 +2,7 @@
 against the measured limit cycle (metrics/oscillation.py) on the cart with a lagged actuator."""
 
 import math
+import warnings
 
 import numpy as np
 import pytest
@@ -66,6 +67,17 @@ def test_oscillation_of_a_sinusoid_and_a_square_wave():
     o = oscillation(fast + slow, h, cycle=1 / 14.0)
     assert o["frequency"] == pytest.approx(14.0, rel=2e-3) and o["amplitude"] == pytest.approx(2e-3, rel=2e-2)
 
+
+
+def test_an_oscillation_whose_square_overflows_is_not_measured_and_warns_nothing():
+    """A diverged run's u (finite, ~1e300): its RMS is beyond the largest float, so no band [-H, H]
+    exists to cross; None (as for a non-finite signal), and no NumPy overflow warning on stderr."""
+    t = np.arange(4000) * 1e-3
+    x = 1e300 * np.sin(2 * np.pi * 7.3 * t)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # any RuntimeWarning fails the test
+        assert oscillation(x, 1e-3) == {"amplitude": None, "frequency": None}
+    assert oscillation(1e-150 * x, 1e-3)["frequency"] == pytest.approx(7.3, rel=2e-3)  # 1e150: squares fit
 
 
 def test_oscillation_amplitude_is_the_median_half_peak_to_peak_of_its_cycles():

@@ -246,6 +246,19 @@ def test_advance_accepts_the_float_drift_of_long_runs_and_refuses_mid_period_cal
 
 
 @pytest.mark.parametrize("native", [False, "auto"])
+def test_a_refused_control_stops_the_run_at_its_sample_on_either_path(native):
+    """phibar = 1e300: the robust law's u ~ 1e300 at the first sample, a control MuJoCo does not
+    apply (beyond 1e10: mjWARN_BADCTRL, no reset). Both paths keep that one sample and say so (the
+    kernel steps the rest of its batch: its rows after the refused one are dropped)."""
+    law = RobustLaw(HONG2, phibar=1e300, gamma_m=0.8)
+    res = simulate(make_plant("cart"), [LoopSpec("cart", controller=law, z0=(1.0, 0.0))], duration=1.0,
+                   period=1e-3, physics_step=1e-3, native=native)
+    assert res.status == DIVERGED and res.n_samples == 1, res.message
+    assert "after the sample at t = 0 s: MuJoCo reported a bad state (mjWARN_BADCTRL x" in res.message
+    assert res.message.endswith("and did not apply the control (NaN or beyond 1e10)"), res.message
+
+
+@pytest.mark.parametrize("native", [False, "auto"])
 def test_a_mujoco_warning_stops_the_run_as_diverged(tmp_path, monkeypatch, native):
     """A force so large that qacc exceeds MuJoCo's limit: MuJoCo warns (and resets the data); the
     run stops at the next sample with the warning named, keeping the samples before it."""

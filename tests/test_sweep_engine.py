@@ -85,7 +85,7 @@ def test_loguniform_and_normal_draws_have_their_laws():
 # -- the loader's errors: one line, file, key path, expectation, finding ---------------------------
 @pytest.mark.parametrize("body, message", [
     ("colour = 1\n", r"s\.toml: colour: expected one of the keys name, .* found unknown key 'colour'"),
-    ('combine = "cross"\n', r"s\.toml: combine: expected one of 'product', 'zip', found 'cross' \(a string\)"),
+    ('combine = "cross"\n', r"s\.toml: combine: expected one of 'product', 'zip', found 'cross'$"),
     ('[grid]\n"sim.period" = {logspace = [0, 1e-2], num = 5}\n',
      r's\.toml: grid\."sim\.period"\.logspace: expected two end values > 0'),
     ('[grid]\n"sim.period" = {range = [1, 2, -1]}\n',

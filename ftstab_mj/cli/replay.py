@@ -86,9 +86,14 @@ def handle(args) -> int:
                   "it could be compared with the log", file=sys.stderr)
             return stop.exit_code
         if v.ok:
-            same = ("are bit-identical" if v.paths is None else
-                    f"agree within the cross-path tolerance (written on the {v.paths[0]} kernel path, re-run on the "
-                    f"{v.paths[1]} one; largest difference {v.worst:.2g} of it)")
+            paths = None if v.paths is None else f"written on the {v.paths[0]} kernel path, re-run on the {v.paths[1]} one"
+            if paths is None:
+                same = "are bit-identical"
+            elif v.worst == 0:  # across paths, yet the same operations gave the same bits
+                same = f"are bit-identical ({paths})"
+            else:
+                same = (f"agree within the cross-path tolerance ({paths}; largest difference {v.worst:.2g} "
+                        "of that tolerance)")
             print(f"verify: re-ran the recorded scenario: all {v.compared} logged values {same}",
                   file=sys.stderr if args.json else sys.stdout)
         else:

@@ -59,8 +59,14 @@ class LogWriteError(FtstabError, RuntimeError):
         super().__init__(f"{self.path}: {cause}")
 
 
+def counted(n: int, noun: str) -> str:
+    """``n`` items in words, the noun singular for one: ``counted(1, "number")`` is "1 number"."""
+    return f"{n} {noun}{'' if n == 1 else 's'}"
+
+
 def describe(value) -> str:
-    """A found value as the user wrote it, with its TOML type: ``'abc' (a string)``."""
+    """A found value as the user wrote it, with its TOML type: ``1.5 (a float)``, ``'1.5' (a string)``;
+    a string that reads as nothing else is shown in its quotes alone (``'abc'``)."""
     kind = {bool: "a boolean", int: "an integer", float: "a float", str: "a string", list: "an array",
             tuple: "an array", dict: "a table"}.get(type(value), type(value).__name__)
     if isinstance(value, (list, tuple, dict)):
@@ -73,7 +79,20 @@ def describe(value) -> str:
         text = repr(value)
     if len(text) > 60:
         text = text[:57] + "..."
+    if isinstance(value, str) and not _reads_as_scalar(value):  # the quotes already say it is a string
+        return text
     return f"{text} ({kind})"
+
+
+def _reads_as_scalar(text: str) -> bool:
+    """Whether a string reads as a number or a boolean ('1.0', 'inf', 'true'): its type is then the point."""
+    if text.strip().lower() in ("true", "false"):
+        return True
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
 
 
 def _short(value) -> str:

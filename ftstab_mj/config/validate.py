@@ -23,7 +23,7 @@ import typing
 from dataclasses import MISSING, fields, is_dataclass
 
 from ftstab_mj.config import keypath
-from ftstab_mj.config.errors import ScenarioError, describe
+from ftstab_mj.config.errors import ScenarioError, counted, describe
 
 # -- limits, with the reason each one is stated for ---------------------------------------------------
 INT64 = (-(2 ** 63), 2 ** 63 - 1)
@@ -297,7 +297,7 @@ class Reader:
 
     def numbers(self, value, path, n: int) -> tuple:
         if not isinstance(value, list) or len(value) != n:
-            raise self.error(path, f"an array of {n} numbers", describe(value))
+            raise self.error(path, f"an array of {counted(n, 'number')}", describe(value))
         return tuple(self.number(v, keypath.join(path, i)) for i, v in enumerate(value))
 
     def _checked(self, v, raw, path, check):

@@ -58,8 +58,9 @@ def oscillation(x, period: float, cycle: float | None = None) -> dict:
         y = x[n // 2:n // 2 + len(x) - n + 1] - (c[n:] - c[:-n]) / n
     else:
         y = x - np.mean(x)
-    rms = math.sqrt(float(np.dot(y, y)) / len(y))
-    if rms == 0.0:
+    with np.errstate(over="ignore"):  # finite samples beyond ~1e154 (a diverged run's u): their squares overflow
+        rms = math.sqrt(float(np.dot(y, y)) / len(y))
+    if rms == 0.0 or rms == math.inf:  # no oscillation, or none measurable: no band [-H, H] to cross
         return none
     up = _upward_crossings(y, HYSTERESIS * rms)
     if len(up) < 3:

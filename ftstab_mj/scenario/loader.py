@@ -29,7 +29,7 @@ from ftstab_mj.control import LAWS, law_class
 from ftstab_mj.control.law import COMPUTED, Law
 from ftstab_mj.plants.disturbances import KEYS_BY_KIND, MAX_VALUE, Signal
 from ftstab_mj.plants.reference import KEYS_BY_KIND as REFERENCE_KEYS, Reference, read_samples
-from ftstab_mj.config.errors import ParameterError, ScenarioError, describe
+from ftstab_mj.config.errors import ParameterError, ScenarioError, counted, describe
 from ftstab_mj.simulation.records import MetricSettings
 from ftstab_mj.scenario.schema import (
     EXTERNAL_CHECKS, SIGNAL_DERIVED, ControllerSpec, LoopSpec, PlantSpec, Scenario, SensorSpec,
@@ -200,8 +200,8 @@ def _check(sc: Scenario, rd: _Reader) -> Scenario:
     for lp in sc.loops:
         p = f"loops.{lp.name}"
         if len(lp.z0) != r:
-            raise rd.error(f"{p}.z0", f"{r} numbers (z_1..z_r, r = {r} for model {sc.plant.model!r})",
-                           f"{len(lp.z0)} numbers")
+            raise rd.error(f"{p}.z0", f"{counted(r, 'number')} (z_1..z_r, r = {r} for model {sc.plant.model!r})",
+                           counted(len(lp.z0), "number"))
         for i, zi in enumerate(lp.z0):  # MuJoCo silently resets a state beyond 1e10 to zero
             if abs(zi) > 1e9:
                 raise rd.error(f"{p}.z0[{i}]", "|z0| <= 1e9 (MuJoCo resets states beyond 1e10)", describe(zi))
@@ -267,8 +267,8 @@ def _check_stages(lp: LoopSpec, r: int, rd: _Reader) -> None:
         for name in ("noise", "quantum"):
             v = getattr(sensor, name)
             if isinstance(v, tuple) and len(v) != m:
-                raise rd.error(f"{p}.sensor.{name}", f"a number or {m} numbers (one per measured channel: "
-                               f"measured = {measured!r}, r = {r})", f"{len(v)} numbers")
+                raise rd.error(f"{p}.sensor.{name}", f"a number or {counted(m, 'number')} (one per measured "
+                               f"channel: measured = {measured!r}, r = {r})", counted(len(v), "number"))
     if measured == "position" and obs is None:
         raise rd.error(f"{p}.observer", f'a [{p}.observer] table (sensor.measured = "position": the law needs '
                        f"z_2..z_r, which an observer rebuilds)", "none")

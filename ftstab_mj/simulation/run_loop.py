@@ -379,10 +379,16 @@ class Simulation:
             finally:  # a Ctrl-C comes out right after mj_step: keep what the batch recorded
                 self._row = self._native.rows - 1
             self.stop_reason = self._native.stop_reason([L.name for L in self.loops], self.divergence_limit)
-        if self._warning_count() != warn0:  # the root cause; MuJoCo also reset the data (and d.time)
+        if self._warning_count() != warn0:  # the root cause
+            if self._native is not None:  # the kernel steps on past a refused control: keep what the Python path keeps
+                self._row = min(self._row, self._first_refused_row())
             t_last = self._t[self._row] if self._row >= 0 else self._t[0] - self.period
+            # a bad state makes MuJoCo reset the data (and d.time); a bad control only goes unapplied
+            refused = not any(w.number for w in self._warnings[:-1])  # mjWARN_BADCTRL (the last) alone
             self.stop_reason = (f"diverged after the sample at t = {t_last:.6g} s: MuJoCo reported a bad state "
-                                f"({self._warning_text()}) and reset the simulation")
+                                f"({self._warning_text()}) and "
+                                + ("did not apply the control (NaN or beyond 1e10)" if refused else
+                                   "reset the simulation"))
         return self.take_batch()
 
     def _step_batch(self, n_samples: int, warn0: int) -> None:
@@ -454,6 +460,12 @@ class Simulation:
                                 tuple(self._rec_block[_OUTPUTS, i]))
                                for i, (law, L, sl, stateful) in enumerate(zip(self.laws, self.loops,
                                                                               self.state_slices, self._stateful)))
+
+    def _first_refused_row(self) -> int:
+        """The first sample of this batch whose control MuJoCo refuses (mjWARN_BADCTRL: a ctrl NaN or
+        beyond mjMAXVAL = 1e10), else the last row recorded."""
+        bad = np.flatnonzero(~(np.abs(self._ctrl[:(self._row + 1) * self.N]) <= 1e10).all(axis=1))
+        return int(bad[0]) // self.N if len(bad) else self._row
 
     def _warning_count(self) -> int:
         return sum([w.number for w in self._warnings])
