@@ -79,7 +79,7 @@ def test_chain_matches_the_numpy_reference_path():
 def test_chain_mode_refuses_a_plant_without_an_exact_chain_twin(tmp_path, plant):
     """A cart with friction or damping is not the ideal chain (its plant declares no exact twin). (The arm is
     refused likewise, after its bound tables, whose progress lines take seconds of a loaded machine.)"""
-    res = run_cli("montecarlo", "cart_r2_robust", "--set", f"plant.{plant}", "--states", "4",
+    res = run_cli("montecarlo", "cart_r2_robust", "--set", f"plant.{plant}", "--on", "chain", "--states", "4",
                   "--out", tmp_path / "o")
     assert res.returncode == 2 and res.stderr.count("\n") == 1 and "--on plant" in res.stderr, res.stderr
     assert plant.replace("=", " = ") in res.stderr  # what makes it no chain is named
@@ -265,3 +265,15 @@ def test_a_state_not_settled_by_the_end_of_the_run_breaks_its_bound_only_when_it
     assert s["unsettled_bound_beyond"] == 1 and s["longest_bound"] == 5.0 and s["never_settled"] == 2
     s = mc.summarize(rows[:2], True, 2.0)  # no late state: the worst is the largest ratio, nothing beyond its bound
     assert s["violations"] == 0 and s["worst"]["row"] == 0 and s["unsettled_bound_beyond"] == 1
+
+
+@pytest.mark.parametrize("scenario, sets, on", [
+    ("cart_r2_robust", [], "chain"),  # an exact twin: the native chain (fast, exact)
+    ("cart_r2_robust", ["--set", "plant.friction=0.5"], "plant"),  # none: the plant itself, not a refusal
+    ("cart_r2_robust", ["--engine", "serial"], "plant"),  # an engine option asks for runs of the plant
+])
+def test_without_on_the_monte_carlo_runs_on_the_chain_where_the_loop_has_an_exact_twin_else_on_the_plant(
+        tmp_path, scenario, sets, on):
+    res = run_cli("montecarlo", scenario, *sets, "--states", "3", "--set", "sim.duration=0.2", "--out", tmp_path / "o")
+    assert res.returncode == 0, res.stderr
+    assert res.stdout.splitlines()[0].endswith("on the ideal chain" if on == "chain" else "on the plant cart")

@@ -27,9 +27,10 @@ def add_parser(sub) -> None:
     mc.add_argument("--seed", type=number_in(0, 2 ** 63 - 1, int), default=0,
                     help="seed of the draw of initial states (default 0)")
     mc.add_argument("--loop", help="the loop whose z0 is drawn (default: the first)")
-    mc.add_argument("--on", choices=("chain", "plant"), default="chain",
+    mc.add_argument("--on", choices=("chain", "plant"), default=None,
                     help="chain: the loop on the exact ideal chain (ideal-chain scenarios, carts without friction or damping); "
-                         "plant: runs of the scenario itself, like ftstab run")
+                         "plant: runs of the scenario itself, like ftstab run (default: chain where the loop has that "
+                         "exact twin and no --workers/--engine/--scheduler is given, else plant)")
     mc.add_argument("--workers", type=workers, default=1, metavar="N", help="plant: parallel runs")
     mc.add_argument("--engine", choices=("serial", "batch", "processes", "dask"),
                     help="plant: the sweep engine, as for ftstab sweep (default: processes when N > 1, dask with "
@@ -52,7 +53,7 @@ def handle(args) -> int:
 
     path = find_scenario(args.scenario)
     sc = load_scenario(path, args.set)
-    loop, box = mc.plan(sc, args.loop, args.states, args.box, args.on, args.workers, args.engine, args.scheduler)
+    loop, box, on = mc.plan(sc, args.loop, args.states, args.box, args.on, args.workers, args.engine, args.scheduler)
     Z0 = mc.Distribution(args.states, tuple(box), args.seed).draw()
     out = output_dir(args.out or Path("runs") / f"{sc.name}-montecarlo", f"--out {args.out}" if args.out else "the output")
     shown = Progress(sys.stderr, args.states, unit="states")  # a status line on a terminal, else silent
@@ -62,8 +63,8 @@ def handle(args) -> int:
 
     say = (lambda *a, **k: None) if args.json else print
     say(f"{sc.name}: {args.states} initial states uniform in |z_i| <= ({', '.join(f'{b:g}' for b in box)}), "
-        f"seed {args.seed}, on the {'ideal chain' if args.on == 'chain' else 'plant ' + sc.plant.model}")
-    rows, applies = mc.run_on(args.on, sc, path, args.set, loop, Z0, args.engine, args.workers, args.scheduler,
+        f"seed {args.seed}, on the {'ideal chain' if on == 'chain' else 'plant ' + sc.plant.model}")
+    rows, applies = mc.run_on(on, sc, path, args.set, loop, Z0, args.engine, args.workers, args.scheduler,
                               progress)
     shown.close()
     summary = mc.summarize(rows, applies, sc.sim.duration)

@@ -73,6 +73,14 @@ def params_text(params: dict) -> str:
     return ", ".join(f"{k} = {v}" for k, v in params.items()) or "no parameters"
 
 
+def chain_refusal(sc, lp, plant) -> str | None:
+    """Why loop ``lp`` of ``sc`` has no exact ideal-chain twin (the found part of a refusal), or None when it has."""
+    stages = [name for name in ("sensor", "observer", "actuator") if getattr(lp, name) is not None]
+    if not plant.exact_chain_twin:
+        return f"plant {sc.plant.model} with {params_text(sc.plant.params)}: not the ideal chain"
+    return f"loop {lp.name} with a {' and '.join(stages)} model" if stages else None
+
+
 def chain_loop(sc, loop: str):
     """(LoopSpec, plant) of the scenario's loop, refusing what has no exact ideal-chain twin."""
     from ftstab_mj.plants import make_plant
@@ -82,23 +90,25 @@ def chain_loop(sc, loop: str):
         raise ScenarioError("montecarlo", "--loop", "a loop of the scenario (" + ", ".join(x.name for x in sc.loops) + ")",
                             repr(loop))
     plant = make_plant(sc.plant.model, sc.plant.params)
-    stages = [name for name in ("sensor", "observer", "actuator") if getattr(lp, name) is not None]
-    if not plant.exact_chain_twin or stages:
-        found = (f"plant {sc.plant.model} with {params_text(sc.plant.params)}: not the ideal chain"
-                 if not plant.exact_chain_twin else f"loop {loop} with a {' and '.join(stages)} model")
+    found = chain_refusal(sc, lp, plant)
+    if found:
         raise ScenarioError("montecarlo", "--on chain", "an ideal-chain or frictionless, undamped cart loop without "
                             "sensor, observer or actuator models (its exact twin is the ideal chain); use --on plant",
                             found)
     return lp, plant
 
 
-def plan(sc, loop: str | None, states: int, box=None, on: str = "chain", workers: int = 1, engine=None,
-         scheduler=None) -> tuple[str, tuple[float, ...]]:
-    """(loop name, box) of a Monte Carlo of scenario ``sc``, checked before anything runs or is printed:
+def plan(sc, loop: str | None, states: int, box=None, on: str | None = None, workers: int = 1, engine=None,
+         scheduler=None) -> tuple[str, tuple[float, ...], str]:
+    """(loop name, box, on) of a Monte Carlo of scenario ``sc``, checked before anything runs or is printed:
     ``loop`` (None: the first) one of its loops, 1 <= ``states`` <= MAX_STATES, ``box`` (None: max |z0_i|
     of the loop on every axis, 1 where z0 = 0) one half-width per z_i, and with ``on="chain"`` no
     workers, engine or scheduler (the native chain uses both cores itself) and a loop with an exact
-    chain twin (:func:`chain_loop`). UsageError or ScenarioError, one line naming the command's option."""
+    chain twin (:func:`chain_loop`). ``on`` None: "chain" where the loop has an exact twin and no engine
+    option is given (the fastest, exact), else "plant". UsageError or ScenarioError, one line naming the
+    command's option."""
+    from ftstab_mj.plants import make_plant
+
     loop = loop or sc.loops[0].name
     lp = next((x for x in sc.loops if x.name == loop), None)
     if lp is None:
@@ -109,11 +119,14 @@ def plan(sc, loop: str | None, states: int, box=None, on: str = "chain", workers
     box = tuple(box or (max(abs(x) for x in lp.z0) or 1.0,) * r)
     if len(box) != r:
         raise UsageError(f"--box: expected {r} half-widths (one per z_i of loop {loop}), found {len(box)}")
-    if on == "chain" and (workers > 1 or scheduler or engine):
+    engine_asked = workers > 1 or scheduler or engine
+    if on is None:
+        on = "plant" if engine_asked or chain_refusal(sc, lp, make_plant(sc.plant.model, sc.plant.params)) else "chain"
+    if on == "chain" and engine_asked:
         raise UsageError("--on chain: expected no --workers/--engine/--scheduler (the native chain uses both cores itself)")
     if on == "chain":
         chain_loop(sc, loop)  # a plant with no exact chain twin is refused before anything is printed
-    return loop, box
+    return loop, box, on
 
 
 def loop_info(sc, lp, law, plant) -> LoopInfo:
@@ -266,7 +279,8 @@ def summarize(rows: list[dict], bound_applies: bool, duration: float | None = No
     T(z0) lies within the run (``late``); one whose T(z0) lies beyond the run says nothing either way
     (``unsettled_bound_beyond``, with ``longest_bound`` the run length that would show them settle).
     ``violations``: states with settle_time / T(z0) > 1 plus the late ones, while the bound applies.
-    ``worst``: a late state if any, else the largest ratio, else a state that never settled."""
+    ``worst``: a late state if any, else the largest ratio, else a state that never settled (not one whose bound
+    lies beyond the run: it is no worst case of anything)."""
     ratio = np.array([r["ratio"] for r in rows], dtype=float)
     settled = np.array([math.isfinite(r["settle_time"]) for r in rows])
     finite = ratio[np.isfinite(ratio)]
@@ -278,7 +292,8 @@ def summarize(rows: list[dict], bound_applies: bool, duration: float | None = No
     if infinite:  # V1(z0) beyond float range: T(z0) is no number, the bound cannot be said to apply (W3)
         bound_applies = False
     largest = max((r for r in rows if math.isfinite(r["ratio"])), key=lambda r: r["ratio"]) if len(finite) else None
-    worst = late[0] if late else largest if largest is not None else (never[0] if never else None)
+    unknown = [r for r in never if r not in beyond]  # never settled, no bound within or beyond the run to judge by
+    worst = late[0] if late else largest if largest is not None else (unknown[0] if unknown else None)
     return {"states": len(rows), "settled": int(settled.sum()), "never_settled": len(never),
             "bound_applies": bool(bound_applies), "with_bound": int(len(finite)),
             "ratio": {"min": q(0.0), "median": q(0.5), "p90": q(0.9), "p99": q(0.99), "max": q(1.0)},
