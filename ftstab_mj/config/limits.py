@@ -27,6 +27,9 @@ MAX_DELAY_SAMPLES = 10 ** 6  # a sensor delay, in control periods (the delay lin
 # -- studies -----------------------------------------------------------------------------------------------------
 MAX_SWEEP_ROWS = 10 ** 5  # runs of one sweep (grid points x samples), and a sweep's samples
 MAX_STATES = 10 ** 6  # initial states of one `montecarlo`
+# -- values MuJoCo holds ----------------------------------------------------------------------------------------
+MUJOCO_MAXVAL = 1e10  # mjMAXVAL: MuJoCo leaves a control beyond it unapplied and resets a state or acceleration beyond it
+MAX_STATE = 1e9  # |z0_i|, a signal's or a reference's values: an order below MUJOCO_MAXVAL, so our check fires first
 
 TABLE = (  # (what, limit as the user reads it, where it is checked, why)
     ("scenario, sweep, comparison, expectations file", "1 MiB", "read", "ours are 2 kB to 100 kB"),

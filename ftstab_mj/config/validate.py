@@ -28,7 +28,7 @@ from ftstab_mj.config.errors import ScenarioError, counted, describe
 # -- limits, with the reason each one is stated for ---------------------------------------------------
 INT64 = (-(2 ** 63), 2 ** 63 - 1)
 from ftstab_mj.config.limits import (MAX_FILE_BYTES, MAX_SAMPLES, MAX_STEPS,  # noqa: E402 - the one table
-                                     MAX_STEPS_PER_PERIOD, MAX_SWEEP_ROWS)  # noqa: F401 - re-exported
+                                     MAX_STATE, MAX_STEPS_PER_PERIOD, MAX_SWEEP_ROWS)  # noqa: F401 - re-exported
 MAX_DEPTH = 16  # arrays/tables nested deeper than any file of ours (the deepest, a sweep group, is 5)
 MAX_ITEMS = 100_000  # values in one file or --set
 MAX_NAME = 200  # characters of a name that becomes a file name: <name>.sweep.json must fit in 255 bytes
@@ -81,7 +81,7 @@ def time_step(v):
 
 def state_limit(v):
     # MuJoCo resets a state beyond 1e10 on its own (a warning, zeros): our limit must fire first.
-    return None if 0 < v <= 1e9 else "a number in (0, 1e9] (MuJoCo resets states beyond 1e10)"
+    return None if 0 < v <= MAX_STATE else "a number in (0, 1e9] (MuJoCo resets states beyond 1e10)"
 
 
 def identifier(v):

@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ftstab_mj.config.errors import ParameterError
+from ftstab_mj.config.limits import MAX_STATE
 
 KINDS = ("constant", "step", "sine", "square", "chirp", "random", "worst_case")
 # The keys a scenario may give for each kind (the loader refuses the others: they would do nothing).
@@ -29,7 +30,7 @@ KEYS_BY_KIND = {
     "worst_case": ("offset", "amplitude"),
 }
 MAX_MODES = 10_000  # each value sums `modes` sinusoids, at every physics step of the run
-MAX_VALUE = 1e9  # |offset| + |amplitude| in a scenario: an order below MuJoCo's 1e10 "huge value" of ctrl, qacc
+MAX_VALUE = MAX_STATE  # |offset| + |amplitude| in a scenario: an order below MuJoCo's 1e10 "huge value" of ctrl, qacc
 
 
 @dataclass(frozen=True)

@@ -38,7 +38,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ftstab_mj.config.errors import ParameterError
-from ftstab_mj.config.limits import MAX_FILE_BYTES
+from ftstab_mj.config.limits import MAX_FILE_BYTES, MAX_STATE
 
 KEYS_BY_KIND = {
     "constant": ("value",),
@@ -49,7 +49,7 @@ KEYS_BY_KIND = {
 }
 KINDS = tuple(KEYS_BY_KIND)
 MAX_COEFFS = 12  # a polynomial of degree <= 11
-MAX_VALUE = 1e9  # |ref| and its derivatives stay far below MuJoCo's 1e10 reset
+MAX_VALUE = MAX_STATE  # |ref| and its derivatives stay far below MuJoCo's 1e10 reset
 MAX_SAMPLES = 100_000  # samples of a file reference (a 1 MiB file holds about that many lines)
 MAX_SMOOTH = 8  # continuous derivatives of a file reference (the certificate's r <= 8 needs 7)
 

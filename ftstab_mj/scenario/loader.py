@@ -36,6 +36,7 @@ from ftstab_mj.scenario.schema import (
 )
 from ftstab_mj.scenario.plugins import is_plugin_file, load_entry_points, load_plugins
 from ftstab_mj.config.tomlfile import parse_text, read_toml
+from ftstab_mj.config.limits import MAX_STATE
 from ftstab_mj.config.validate import LIMITS, Reader, TableMemo, limit_text, whole_steps
 
 _SIGNAL_ROLES = {"disturbance": 1, "gain": 2, "sensor": 3}
@@ -203,7 +204,7 @@ def _check(sc: Scenario, rd: _Reader) -> Scenario:
             raise rd.error(f"{p}.z0", f"{counted(r, 'number')} (z_1..z_r, r = {r} for model {sc.plant.model!r})",
                            counted(len(lp.z0), "number"))
         for i, zi in enumerate(lp.z0):  # MuJoCo silently resets a state beyond 1e10 to zero
-            if abs(zi) > 1e9:
+            if abs(zi) > MAX_STATE:
                 raise rd.error(f"{p}.z0[{i}]", "|z0| <= 1e9 (MuJoCo resets states beyond 1e10)", describe(zi))
         if lp.gain.state_dependent:
             raise rd.error(f"{p}.gain.kind", "a gain signal that depends on time only (worst_case is a "

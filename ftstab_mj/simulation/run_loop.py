@@ -60,6 +60,7 @@ from ftstab_mj.simulation import native as native_path
 from ftstab_mj.plants.callback import control_callback, holds_slot, timer_off
 from ftstab_mj.simulation.interrupts import Interrupted, critical, interruption
 from ftstab_mj.config.errors import CallbackError, ParameterError
+from ftstab_mj.config.limits import MUJOCO_MAXVAL
 from ftstab_mj.simulation.stages.pipeline import build_stages, describe_stages
 from ftstab_mj.simulation.native import run as native_run
 from ftstab_mj.plants.base import Plant, release_data
@@ -464,7 +465,7 @@ class Simulation:
     def _first_refused_row(self) -> int:
         """The first sample of this batch whose control MuJoCo refuses (mjWARN_BADCTRL: a ctrl NaN or
         beyond mjMAXVAL = 1e10), else the last row recorded."""
-        bad = np.flatnonzero(~(np.abs(self._ctrl[:(self._row + 1) * self.N]) <= 1e10).all(axis=1))
+        bad = np.flatnonzero(~(np.abs(self._ctrl[:(self._row + 1) * self.N]) <= MUJOCO_MAXVAL).all(axis=1))
         return int(bad[0]) // self.N if len(bad) else self._row
 
     def _warning_count(self) -> int:

@@ -26,6 +26,7 @@ from dataclasses import dataclass, field, replace
 
 from ftstab_mj.config import keypath
 from ftstab_mj.config.errors import ScenarioError, SweepError
+from ftstab_mj.config.limits import MAX_STATE
 from ftstab_mj.simulation.records import COMPLETED, INTERRUPTED
 from ftstab_mj.scenario.loader import apply_override, resolve_relative_paths, scenario_from_dict, scenario_with
 from ftstab_mj.studies.sweep.spec import Sweep
@@ -213,7 +214,7 @@ class _States:
         """Whether z0 passes the checks the scenario file's loader makes of it (r finite numbers, |z0_i| <= 1e9):
         the only field that changes from state to state."""
         return (isinstance(z, (list, tuple)) and len(z) == self.r
-                and all(isinstance(x, float) and math.isfinite(x) and abs(x) <= 1e9 for x in z))
+                and all(isinstance(x, float) and math.isfinite(x) and abs(x) <= MAX_STATE for x in z))
 
     def run(self, z) -> dict:
         """The row of the state z0 = ``z``: ``ScenarioTask``'s result with the guarantee's metrics only."""
